@@ -1,0 +1,70 @@
+"""The ``splatstyler`` console command: one parser, one module per subcommand in ``app/commands``.
+
+Each command module has ``register(subparsers)``, which adds its parser and sets ``func`` to a function taking the
+parsed arguments and returning an exit code. Modules import their heavy dependencies inside that function so that
+``--help`` stays fast.
+"""
+
+from __future__ import annotations
+
+import argparse
+import importlib
+import sys
+
+# Order here is the order in `splatstyler --help`.
+COMMANDS = [
+    "demo",
+    "sfm",
+    "info",
+    "reconstruct",
+    "stylize",
+    "export",
+    "bench",
+]
+
+
+def build_parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(
+        prog="splatstyler",
+        description="Reconstruct a scene as 3D Gaussians from photos and stylize it after a painting.",
+    )
+    parser.add_argument("--debug", action="store_true", help="show full tracebacks on errors")
+    sub = parser.add_subparsers(dest="command", metavar="COMMAND")
+    for name in COMMANDS:
+        try:
+            module = importlib.import_module(f"app.commands.{name}")
+        except ModuleNotFoundError as exc:
+            if exc.name == f"app.commands.{name}":
+                continue  # a command not built yet is simply absent from the menu
+            raise
+        module.register(sub)
+    return parser
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = build_parser()
+    args = parser.parse_args(argv)
+    if not getattr(args, "func", None):
+        parser.print_help()
+        return 2
+    from training.errors import InputError
+
+    try:
+        return int(args.func(args) or 0)
+    except KeyboardInterrupt:
+        print("splatstyler: interrupted", file=sys.stderr)
+        return 130
+    except InputError as exc:
+        if args.debug:
+            raise
+        print(f"splatstyler: error: {exc}", file=sys.stderr)
+        return 2
+    except Exception as exc:  # an unexpected failure still gets one readable line
+        if args.debug:
+            raise
+        print(f"splatstyler: error: {type(exc).__name__}: {exc} (run with --debug for the traceback)", file=sys.stderr)
+        return 1
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,111 @@
+"""The scene every loader produces and every trainer consumes: cameras, images, SfM points, split, normalisation.
+
+Conventions (shared by the whole code base):
+- ``world_to_camera`` is a 4x4 float64 matrix in the OpenCV/COLMAP camera convention: x right, y down, z forward
+  (the camera looks along +z). A point p_w maps to p_c = R p_w + t.
+- Intrinsics are pinhole (distortion already removed by the loader), in pixels, for the image as stored in
+  ``Scene.images`` (so they are scaled together with ``--downscale``). The pixel centre convention is COLMAP's:
+  the centre of the top-left pixel is (0.5, 0.5).
+- Images are float32 RGB in [0, 1], shape (H, W, 3); masks, where present, float32 (H, W) in [0, 1].
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+LLFF_HOLDOUT = 8  # every 8th view is held out for testing (the LLFF / 3DGS convention)
+
+
+@dataclass
+class Camera:
+    name: str  # image file name relative to the scene's image folder
+    width: int
+    height: int
+    fx: float
+    fy: float
+    cx: float
+    cy: float
+    world_to_camera: np.ndarray  # (4, 4) float64, OpenCV convention
+
+    @property
+    def K(self) -> np.ndarray:
+        """(3, 3) float64 intrinsic matrix."""
+        return np.array([[self.fx, 0.0, self.cx], [0.0, self.fy, self.cy], [0.0, 0.0, 1.0]])
+
+    @property
+    def camera_to_world(self) -> np.ndarray:
+        return np.linalg.inv(self.world_to_camera)
+
+    @property
+    def center(self) -> np.ndarray:
+        """(3,) camera position in world coordinates."""
+        R = self.world_to_camera[:3, :3]
+        t = self.world_to_camera[:3, 3]
+        return -R.T @ t
+
+    @property
+    def forward(self) -> np.ndarray:
+        """(3,) unit viewing direction (camera +z) in world coordinates."""
+        return self.world_to_camera[2, :3] / np.linalg.norm(self.world_to_camera[2, :3])
+
+    def scaled(self, factor: float) -> "Camera":
+        """The same camera for an image resized by ``factor`` (e.g. 0.5 for ``--downscale 2``)."""
+        w = max(1, int(round(self.width * factor)))
+        h = max(1, int(round(self.height * factor)))
+        sx, sy = w / self.width, h / self.height
+        return Camera(self.name, w, h, self.fx * sx, self.fy * sy, self.cx * sx, self.cy * sy,
+                      self.world_to_camera.copy())
+
+
+@dataclass
+class Scene:
+    cameras: list[Camera]
+    images: list[np.ndarray]  # each (H, W, 3) float32 in [0, 1], matching cameras[i].height/width
+    masks: list[np.ndarray | None] = field(default_factory=list)  # each (H, W) float32 or None
+    points: np.ndarray | None = None  # (P, 3) float32 SfM points, world coordinates
+    point_colors: np.ndarray | None = None  # (P, 3) float32 in [0, 1]
+    source: Path | None = None  # the folder or file the scene was loaded from
+    train_indices: list[int] = field(default_factory=list)
+    test_indices: list[int] = field(default_factory=list)
+    center: np.ndarray | None = None  # (3,) world-space centre of the cameras; computed when None
+    extent: float | None = None  # radius enclosing the cameras x1.1 (3DGS's cameras_extent); computed when None
+
+    def __post_init__(self) -> None:
+        if not self.masks:
+            self.masks = [None] * len(self.cameras)
+        if not self.train_indices and not self.test_indices:
+            self.train_indices, self.test_indices = llff_split(len(self.cameras))
+        if self.center is None or self.extent is None:
+            center, extent = camera_normalization(self.cameras) if self.cameras else (np.zeros(3), 1.0)
+            self.center = center if self.center is None else np.asarray(self.center, dtype=np.float64)
+            self.extent = extent if self.extent is None else float(self.extent)
+
+    @property
+    def num_points(self) -> int:
+        return 0 if self.points is None else int(len(self.points))
+
+    def normalize_points(self, xyz: np.ndarray) -> np.ndarray:
+        """World coordinates to normalised scene units: (x - center) / extent (cameras within the unit ball)."""
+        return (np.asarray(xyz) - self.center) / self.extent
+
+
+def llff_split(n: int, holdout: int = LLFF_HOLDOUT) -> tuple[list[int], list[int]]:
+    """Every ``holdout``-th view (0, 8, 16, ...) is a test view; with fewer than 2 views, all train."""
+    if n < 2:
+        return list(range(n)), []
+    test = [i for i in range(n) if i % holdout == 0]
+    train = [i for i in range(n) if i % holdout != 0]
+    return train, test
+
+
+def camera_normalization(cameras: list[Camera]) -> tuple[np.ndarray, float]:
+    """3DGS's getNerfppNorm: centre of the camera positions and 1.1 x the largest distance from it."""
+    centers = np.stack([c.center for c in cameras])
+    center = centers.mean(axis=0)
+    radius = float(np.linalg.norm(centers - center, axis=1).max()) * 1.1
+    if radius <= 1e-9:  # a single camera, or all at one point: keep a usable unit scale
+        radius = 1.0
+    return center, radius
