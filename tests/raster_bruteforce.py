@@ -1,0 +1,87 @@
+"""Float64 per-pixel brute-force Gaussian renderer: the ground truth for the rasterizer tests.
+
+No tiles, no screen boxes, no frustum culling: every pixel visits every Gaussian in front of the near plane, in
+increasing depth, one after the other, exactly as the compositing rule reads. Written separately from the
+backends (rotations via scipy, covariances via einsum) so the two implementations share no code except the SH
+basis formulas.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import torch
+from scipy.spatial.transform import Rotation
+
+from training.sh import sh_to_rgb
+
+
+def bruteforce_render(
+    means, quats, scales, opacities, colors, viewmat, K, width, height,
+    sh_degree=None, background=None, near_plane=0.01, far_plane=1e10, eps2d=0.3,
+):
+    """All inputs as arrays/tensors (any float dtype). Returns float64 arrays rgb (H,W,3), depth (H,W,1) = sum
+    d_i a_i T_i, alpha (H,W,1)."""
+    f64 = lambda t: np.asarray(t.detach().cpu().numpy() if isinstance(t, torch.Tensor) else t, dtype=np.float64)
+    means, quats, scales, opacities, viewmat, K = map(f64, (means, quats, scales, opacities, viewmat, K))
+    n = means.shape[0]
+    R, t = viewmat[:3, :3], viewmat[:3, 3]
+    if sh_degree is None:
+        rgb = f64(colors)
+    else:
+        campos = -R.T @ t
+        rgb = sh_to_rgb(sh_degree, torch.from_numpy(f64(colors)), torch.from_numpy(means),
+                        torch.from_numpy(campos)).numpy()
+    pc = np.einsum("ij,nj->ni", R, means) + t
+    z = pc[:, 2]
+    fx, fy, cx, cy = K[0, 0], K[1, 1], K[0, 2], K[1, 2]
+
+    norms = np.linalg.norm(quats, axis=1)
+    # scipy wants (x, y, z, w); a zero quaternion is not a rotation, treat as identity like a normalised eps would.
+    q = np.where(norms[:, None] > 0, quats / np.maximum(norms, 1e-300)[:, None], [1.0, 0, 0, 0])
+    rot = Rotation.from_quat(q[:, [1, 2, 3, 0]]).as_matrix() if n else np.zeros((0, 3, 3))
+    cov_w = np.einsum("nij,nj,nkj->nik", rot, scales**2, rot)
+    cov_c = np.einsum("ij,njk,lk->nil", R, cov_w, R)
+
+    with np.errstate(divide="ignore", invalid="ignore"):
+        limx_p = (width - cx) / fx + 0.3 * (0.5 * width / fx)
+        limx_n = cx / fx + 0.3 * (0.5 * width / fx)
+        limy_p = (height - cy) / fy + 0.3 * (0.5 * height / fy)
+        limy_n = cy / fy + 0.3 * (0.5 * height / fy)
+        u = np.clip(pc[:, 0] / z, -limx_n, limx_p)
+        v = np.clip(pc[:, 1] / z, -limy_n, limy_p)
+        J = np.zeros((n, 2, 3))
+        J[:, 0, 0] = fx / z
+        J[:, 0, 2] = -fx * u / z
+        J[:, 1, 1] = fy / z
+        J[:, 1, 2] = -fy * v / z
+        cov2 = np.einsum("nij,njk,nlk->nil", J, cov_c, J) + eps2d * np.eye(2)
+        inv = np.linalg.inv(cov2) if n else cov2
+        mx = fx * pc[:, 0] / z + cx
+        my = fy * pc[:, 1] / z + cy
+    det = np.linalg.det(cov2) if n else np.zeros(0)
+    keep = (z >= near_plane) & (z <= far_plane) & (det > 0)
+
+    ys, xs = np.mgrid[0:height, 0:width]
+    px, py = xs.ravel() + 0.5, ys.ravel() + 0.5
+    T = np.ones(px.shape)
+    done = np.zeros(px.shape, bool)
+    out_rgb = np.zeros((px.size, 3))
+    out_d = np.zeros(px.size)
+    for i in np.argsort(z, kind="stable"):
+        if not keep[i]:
+            continue
+        dx, dy = mx[i] - px, my[i] - py
+        power = -0.5 * (inv[i, 0, 0] * dx * dx + inv[i, 1, 1] * dy * dy) - inv[i, 0, 1] * dx * dy
+        alpha = np.minimum(0.99, opacities[i] * np.exp(power))
+        use = (~done) & (power <= 0) & (alpha >= 1.0 / 255.0)
+        next_T = T * (1.0 - alpha)
+        stop = use & (next_T <= 1e-4)
+        done |= stop
+        use &= ~stop
+        w = np.where(use, alpha * T, 0.0)
+        out_rgb += w[:, None] * rgb[i]
+        out_d += w * z[i]
+        T = np.where(use, next_T, T)
+    if background is not None:
+        out_rgb += T[:, None] * f64(background)
+    return (out_rgb.reshape(height, width, 3), out_d.reshape(height, width, 1), (1.0 - T).reshape(height, width, 1))
