@@ -27,10 +27,11 @@ from training.scene import Scene
 
 INITIAL_OPACITY = 0.1
 NUM_NEIGHBOURS = 3
-# Smallest initial standard deviation, relative to the point cloud's bounding-box diagonal. It only matters where
-# 4+ points coincide (the 3-NN distance is then 0 and log(0) would be -inf); 3DGS uses an absolute 1e-7 on the
-# squared distance, which is not scale-invariant.
-MIN_SCALE_RELATIVE = 1e-4
+# Smallest initial standard deviation, relative to the point cloud's bounding-box diagonal: about 10 float32 ulps
+# of the coordinates, below which a size means nothing. It matters where 4+ points coincide (the 3-NN distance is
+# then 0 and log(0) would be -inf). It must stay far below real spacings even when a few SfM outliers blow up the
+# diagonal. 3DGS clamps the squared distance at an absolute 1e-7, which is not scale-invariant.
+MIN_SCALE_RELATIVE = 1e-6
 # Random init depth range, in units of Scene.extent (the camera sphere's radius): from NEAR x extent in front of
 # each camera to the far side of the camera sphere (distance to the centre + extent).
 RANDOM_NEAR = 0.05
