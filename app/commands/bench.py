@@ -12,7 +12,9 @@ import importlib
 import json
 
 # name -> (module, one-line help)
-BENCHES: dict[str, tuple[str, str]] = {}
+BENCHES: dict[str, tuple[str, str]] = {
+    "reconstruct": ("training.bench_reconstruct", "iterations/s of the quick reconstruction preset, per phase"),
+}
 
 
 def register(sub: argparse._SubParsersAction) -> None:
