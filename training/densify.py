@@ -166,7 +166,7 @@ class DensifyStrategy:
         if n_split:
             scales = model.scales.detach()[split].repeat(2, 1)
             rot = quat_to_rotmat(model.quats.detach()[split]).repeat(2, 1, 1)
-            noise = torch.randn(scales.shape, generator=generator, device=scales.device, dtype=scales.dtype)
+            noise = torch.randn(scales.shape, generator=generator, dtype=scales.dtype).to(scales.device)
             offsets = torch.einsum("nij,nj->ni", rot, noise * scales)
             split_new = {k: v.detach()[split].repeat(2, *([1] * (v.dim() - 1))) for k, v in params.items()}
             split_new["means"] = split_new["means"] + offsets

@@ -73,6 +73,7 @@ class ReconstructConfig:
     densify: DensifyConfig = field(default_factory=DensifyConfig)
     background: str = "black"
     backend: str = "auto"
+    device: str = "auto"  # "auto" (cuda when available) | "cpu" | "cuda"
     random_init_points: int = 50_000  # when the scene has no SfM points
     snapshot_every: int = 100
     seed: int = 0
@@ -116,6 +117,12 @@ def means_lr(cfg: ReconstructConfig, step: int, extent: float) -> float:
     return lr * extent
 
 
+def resolve_device(name: str) -> torch.device:
+    if name == "auto":
+        return torch.device("cuda" if torch.cuda.is_available() else "cpu")
+    return torch.device(name)
+
+
 def initial_gaussians(scene: Scene, cfg: ReconstructConfig) -> tuple[Gaussians, str]:
     """SfM points when the scene has them, else random Gaussians in the view volume; and which it was."""
     from training.gaussian_init import gaussians_from_points, gaussians_random
@@ -144,7 +151,7 @@ class Reconstructor:
             gaussians, self.init_source = initial_gaussians(scene, config)
         else:
             self.init_source = "given"
-        self.gaussians = gaussians.detached()
+        self.gaussians = gaussians.detached().to(resolve_device(config.device))
         for t in self.gaussians.parameters().values():
             t.requires_grad_(True)
         self.device = self.gaussians.device
@@ -271,7 +278,8 @@ class Reconstructor:
         self._consecutive_recoveries = 0
         if cfg.snapshot_every > 0 and i % cfg.snapshot_every == 0:
             self._snapshot = self._take_snapshot()
-        return {"step": i, "loss": float(loss.detach()), "l1": float(l1.detach()), "ssim": float(ssim_val.detach()),
+        return {"step": i, "loss": float(loss.detach()), "l1": float(l1.detach()),
+                "ssim": float(ssim_val.detach()),
                 "psnr": psnr(rgb.clamp(0, 1), target), "lambda_depth": lam_depth if depth_t is not None else 0.0,
                 **terms, "num_gaussians": len(self.gaussians), "sh_degree": self.active_sh_degree, "view": view,
                 **counts, "recovered": False, "times": times}

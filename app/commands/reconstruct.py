@@ -1,0 +1,193 @@
+"""``splatstyler reconstruct DATA -o OUT``: train a 3DGS model with the paper's regularizers.
+
+Writes OUT/point_cloud.ply (standard 3DGS layout), OUT/report.json (metrics and settings) and OUT/checkpoint.pt
+(every --checkpoint-every iterations, on Ctrl-C and at the end; ``--resume`` continues from it).
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+from pathlib import Path
+
+PRESETS = ("quick", "standard", "paper")
+
+
+def register(sub: argparse._SubParsersAction) -> None:
+    p = sub.add_parser(
+        "reconstruct",
+        help="train a 3D Gaussian Splatting model of a scene (3DGS + depth/shape/size regularizers)",
+        description="Train a 3DGS model of DATA (a COLMAP folder or a transforms.json scene) into OUT: "
+                    "OUT/point_cloud.ply, OUT/report.json, OUT/checkpoint.pt.",
+    )
+    p.add_argument("data", metavar="DATA", help="scene: COLMAP folder (images/ + sparse/), or transforms.json")
+    p.add_argument("-o", "--output", required=True, metavar="OUT", help="output folder")
+    p.add_argument("--preset", choices=PRESETS, default="quick",
+                   help="quick: minutes on a CPU (downscaled, 3000 iterations); standard: 7000 iterations at "
+                        "1/4 resolution; paper: 3DGS's 30k iterations at full resolution, for a GPU "
+                        "(default: quick)")
+    p.add_argument("--iters", type=int, default=None, metavar="N", help="number of iterations (overrides preset)")
+    p.add_argument("--downscale", type=int, default=None, metavar="N", help="divide image sizes by N")
+    p.add_argument("--depth", choices=("sfm", "mono", "none"), default=None,
+                   help="depth targets: sparse SfM depth (default), Depth Anything V2 aligned to SfM, or none. "
+                        "With sfm on a scene without SfM points the depth term is switched off, with a warning")
+    p.add_argument("--mono-depth-model", default=None, metavar="PATH",
+                   help="local folder of depth-anything/Depth-Anything-V2-Small-hf (for --depth mono)")
+    p.add_argument("--no-shape", action="store_true", help="switch the shape regularizer off")
+    p.add_argument("--no-size", action="store_true", help="switch the size regularizer off")
+    p.add_argument("--no-depth", action="store_true", help="switch the depth term off")
+    p.add_argument("--backend", choices=("auto", "cpu", "cuda", "torch"), default=None, help="rasterizer backend")
+    p.add_argument("--background", choices=("black", "white", "random"), default=None,
+                   help="background colour behind the Gaussians (default black)")
+    p.add_argument("--resume", action="store_true", help="continue from OUT/checkpoint.pt (its settings, "
+                                                         "with --iters allowed to extend the run)")
+    p.add_argument("--checkpoint-every", type=int, default=1000, metavar="N",
+                   help="save OUT/checkpoint.pt every N iterations (0: only on Ctrl-C and at the end)")
+    p.add_argument("--seed", type=int, default=None, help="random seed (default 0)")
+    p.add_argument("--no-progress", action="store_true", help="no progress bar")
+    p.set_defaults(func=run)
+
+
+def _config(args):
+    from training.reconstruct import ReconstructConfig
+
+    cfg = ReconstructConfig.from_preset(args.preset)
+    if args.iters is not None:
+        cfg.iterations = args.iters
+    if args.downscale is not None:
+        cfg.downscale = args.downscale
+    if args.depth is not None:
+        cfg.depth = args.depth
+    cfg.mono_depth_model = args.mono_depth_model
+    cfg.use_shape = not args.no_shape
+    cfg.use_size = not args.no_size
+    cfg.use_depth = not args.no_depth
+    if args.backend is not None:
+        cfg.backend = args.backend
+    if args.background is not None:
+        cfg.background = args.background
+    if args.seed is not None:
+        cfg.seed = args.seed
+    return cfg
+
+
+def _scale_densify_to_iterations(cfg, preset_iterations: int) -> None:
+    """With --iters differing from the preset, stretch the density-control schedule to match."""
+    if cfg.iterations == preset_iterations:
+        return
+    f = cfg.iterations / preset_iterations
+    d = cfg.densify
+    d.start = max(1, int(round(d.start * f)))
+    d.stop = max(d.start + 1, int(round(d.stop * f)))
+    d.interval = max(1, int(round(d.interval * f)))
+    d.reset_every = max(1, int(round(d.reset_every * f)))
+    cfg.sh_interval = max(1, int(round(cfg.sh_interval * f)))
+
+
+def run(args) -> int:
+    import json
+    import time
+
+    from training.checkpoint import CHECKPOINT_NAME, load_checkpoint, save_checkpoint
+    from training.errors import InputError
+    from training.ply_io import write_ply
+    from training.reconstruct import ReconstructConfig, Reconstructor
+    from training.regularizers import scale_stats
+    from training.scene_loader import load_scene
+    from training.atomic_write import atomic_open
+    from training.metrics import constant_color_psnr
+
+    out = Path(args.output)
+    if out.exists() and not out.is_dir():
+        raise InputError(out, "the output path exists and is not a folder")
+    ckpt_path = out / CHECKPOINT_NAME
+    state = None
+    if args.resume:
+        state = load_checkpoint(ckpt_path)
+        cfg = ReconstructConfig.from_dict(state["config"])
+        if args.iters is not None:
+            cfg.iterations = args.iters
+    else:
+        cfg = _config(args)
+        _scale_densify_to_iterations(cfg, ReconstructConfig.from_preset(args.preset).iterations)
+    if cfg.iterations < 1:
+        raise InputError(None, f"--iters must be at least 1, got {cfg.iterations}")
+    if cfg.downscale < 1:
+        raise InputError(None, f"--downscale must be at least 1, got {cfg.downscale}")
+
+    scene = load_scene(args.data, downscale=cfg.downscale)
+    trainer = Reconstructor(scene, cfg)
+    elapsed = 0.0
+    report_extra: dict = {}
+    if state is not None:
+        trainer.load_state_dict(state)
+        elapsed = float(state.get("elapsed", 0.0))
+        report_extra = dict(state.get("report_extra", {}))
+        print(f"resuming from {ckpt_path} at iteration {trainer.step_count}", file=sys.stderr)
+    else:
+        init = trainer.evaluate(scene.test_indices or scene.train_indices)
+        report_extra = {"initial_psnr": init["psnr"], "initial_ssim": init["ssim"],
+                        "constant_color_psnr": constant_color_psnr(scene, scene.train_indices,
+                                                                   scene.test_indices or scene.train_indices)}
+    out.mkdir(parents=True, exist_ok=True)
+
+    def checkpoint() -> None:
+        s = trainer.state_dict()
+        s["elapsed"] = elapsed + (time.perf_counter() - t_start)
+        s["report_extra"] = report_extra
+        save_checkpoint(ckpt_path, s)
+
+    from tqdm import tqdm
+
+    bar = tqdm(total=cfg.iterations, initial=trainer.step_count, desc="reconstruct", unit="it",
+               disable=args.no_progress, dynamic_ncols=True)
+    t_start = time.perf_counter()
+    psnr_ema = None
+    try:
+        while trainer.step_count < cfg.iterations:
+            m = trainer.step()
+            if not m["recovered"]:
+                psnr_ema = m["psnr"] if psnr_ema is None else 0.9 * psnr_ema + 0.1 * m["psnr"]
+                bar.set_postfix(loss=f"{m['loss']:.4f}", psnr=f"{psnr_ema:.2f}", n=m["num_gaussians"],
+                                refresh=False)
+            bar.update(1)
+            if args.checkpoint_every > 0 and trainer.step_count % args.checkpoint_every == 0:
+                checkpoint()
+    except KeyboardInterrupt:
+        bar.close()
+        checkpoint()
+        print(f"interrupted at iteration {trainer.step_count}; checkpoint saved to {ckpt_path} "
+              "(continue with --resume)", file=sys.stderr)
+        return 130
+    bar.close()
+    seconds = elapsed + (time.perf_counter() - t_start)
+    checkpoint()
+
+    model = trainer.export_gaussians()
+    write_ply(out / "point_cloud.ply", model)
+    train = trainer.evaluate(scene.train_indices)
+    test = trainer.evaluate(scene.test_indices)
+    stats = scale_stats(model.scales / trainer.extent)
+    report = {
+        "train_psnr": train["psnr"], "train_ssim": train["ssim"],
+        "test_psnr": test["psnr"], "test_ssim": test["ssim"], "test_views": test["views"],
+        "num_gaussians": len(model),
+        "aniso_p95": stats["aniso_p95"], "smax_p95": stats["smax_p95"],
+        "seconds": seconds,
+        "iterations": trainer.step_count,
+        **report_extra,
+        "nan_recoveries": trainer.recoveries,
+        "settings": {
+            "data": str(Path(args.data).resolve()),
+            "depth_used": trainer.depth_mode,
+            "init": trainer.init_source,
+            "extent": trainer.extent,
+            "image_size": [scene.cameras[0].width, scene.cameras[0].height],
+            "config": cfg.to_dict(),
+        },
+    }
+    with atomic_open(out / "report.json", "w") as f:
+        json.dump(report, f, indent=2)
+    print(f"wrote {out / 'point_cloud.ply'} ({len(model)} Gaussians); test PSNR "
+          f"{'n/a' if test['psnr'] is None else format(test['psnr'], '.2f')} dB", file=sys.stderr)
+    return 0
