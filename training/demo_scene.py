@@ -25,6 +25,7 @@ from training.scene import Camera
 
 _EPS = 1e-6
 _SHADOW_OFFSET = 1e-4
+_CHUNK = 8192  # rays per batch
 LIGHT_DIRECTION = np.array([0.45, -0.6, 0.8]) / np.linalg.norm([0.45, -0.6, 0.8])  # towards the light
 LOOK_AT = np.array([0.0, 0.3, 0.55])  # where every camera looks
 
@@ -342,7 +343,10 @@ class DemoWorld:
         dirs = dirs_cam.reshape(-1, 3) @ R  # R^T applied to each row
         dirs /= np.linalg.norm(dirs, axis=1, keepdims=True)
         origins = np.broadcast_to(camera.center, dirs.shape).copy()
-        colour = self.radiance(origins, dirs).reshape(camera.height, s, camera.width, s, 3)
+        # Chunks keep numpy's temporaries small and cache-friendly.
+        colour = np.concatenate([self.radiance(origins[i:i + _CHUNK], dirs[i:i + _CHUNK])
+                                 for i in range(0, len(dirs), _CHUNK)])
+        colour = colour.reshape(camera.height, s, camera.width, s, 3)
         return colour.mean(axis=(1, 3)).astype(np.float32)
 
     def visible(self, points: np.ndarray, camera: Camera, tolerance: float = 1e-4) -> np.ndarray:

@@ -18,6 +18,7 @@ _GRADIENTS = np.array(
      [1, 1, 0], [0, -1, 1], [-1, 1, 0], [0, -1, -1]],
     dtype=np.float64,
 )
+_GX, _GY, _GZ = (np.ascontiguousarray(_GRADIENTS[:, k]) for k in range(3))
 
 
 class GradientNoise:
@@ -26,7 +27,7 @@ class GradientNoise:
     def __init__(self, seed: int):
         perm = np.random.default_rng(seed).permutation(256).astype(np.int64)
         # Doubled so that nested lookups perm[perm[x] + y] never need a modulo (indices stay below 512).
-        self._perm = np.concatenate([perm, perm])
+        self._perm = np.concatenate([perm, perm]).astype(np.int32)
         # A fixed per-octave shift keeps the lattice of every octave from lining up at the origin.
         self._octave_offsets = np.random.default_rng(seed + 1).uniform(0.0, 256.0, size=(16, 3))
 
@@ -35,26 +36,27 @@ class GradientNoise:
         p = np.asarray(p, dtype=np.float64)
         shape = p.shape[:-1]
         p = p.reshape(-1, 3)
-        cell = np.floor(p)
-        f = p - cell
-        ci = cell.astype(np.int64) & 255
-        x0, y0, z0 = ci[:, 0], ci[:, 1], ci[:, 2]
-        fade = f * f * f * (f * (f * 6.0 - 15.0) + 10.0)
-        perm = self._perm
+        x, y, z = p[:, 0], p[:, 1], p[:, 2]
+        fx0, fy0, fz0 = np.floor(x), np.floor(y), np.floor(z)
+        x0 = fx0.astype(np.int32) & 255
+        y0 = fy0.astype(np.int32) & 255
+        z0 = fz0.astype(np.int32) & 255
+        fx, fy, fz = x - fx0, y - fy0, z - fz0
+        fx1, fy1, fz1 = fx - 1.0, fy - 1.0, fz - 1.0
+        perm, gx, gy, gz = self._perm, _GX, _GY, _GZ
         # Hash the 8 corners: perm[perm[perm[x] + y] + z], as in Perlin's reference.
         px0 = perm[x0]
         px1 = perm[x0 + 1]
-        pxy = (perm[px0 + y0], perm[px0 + y0 + 1], perm[px1 + y0], perm[px1 + y0 + 1])
-        corner_values = []
-        for k, (dx, dy) in enumerate(((0, 0), (0, 1), (1, 0), (1, 1))):
-            for dz in (0, 1):
-                h = perm[pxy[k] + z0 + dz] & 15
-                g = _GRADIENTS[h]
-                corner_values.append(
-                    g[:, 0] * (f[:, 0] - dx) + g[:, 1] * (f[:, 1] - dy) + g[:, 2] * (f[:, 2] - dz)
-                )
-        n000, n001, n010, n011, n100, n101, n110, n111 = corner_values
-        u, v, w = fade[:, 0], fade[:, 1], fade[:, 2]
+        corners = []
+        for pxy, dx, dy in ((perm[px0 + y0], fx, fy), (perm[px0 + y0 + 1], fx, fy1),
+                            (perm[px1 + y0], fx1, fy), (perm[px1 + y0 + 1], fx1, fy1)):
+            for dz, z in ((fz, z0), (fz1, z0 + 1)):
+                h = perm[pxy + z] & 15
+                corners.append(gx[h] * dx + gy[h] * dy + gz[h] * dz)
+        n000, n001, n010, n011, n100, n101, n110, n111 = corners
+        u = fx * fx * fx * (fx * (fx * 6.0 - 15.0) + 10.0)
+        v = fy * fy * fy * (fy * (fy * 6.0 - 15.0) + 10.0)
+        w = fz * fz * fz * (fz * (fz * 6.0 - 15.0) + 10.0)
         nx00 = n000 + u * (n100 - n000)
         nx01 = n001 + u * (n101 - n001)
         nx10 = n010 + u * (n110 - n010)
