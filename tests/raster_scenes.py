@@ -40,7 +40,8 @@ def random_scene(n, width, height, seed, dtype=torch.float32, sh_degree=None, ed
         means[sl[3], 0] = means[sl[3], 2] * (torch.rand(k, generator=g, dtype=d) * 2 + 1.0)  # off-screen right
         means[sl[4], 1] = -means[sl[4], 2] * 0.6  # partly off-screen top
         scales[sl[5], 0] = 0.0  # degenerate (flat) Gaussians
-        scales[sl[6]] = scales[sl[6]] * 40  # huge
+        scales[sl[6]] = scales[sl[6]] * 40  # huge (faint, so they do not hide everything else)
+        opacities[sl[6]] = 0.02
         opacities[sl[7]] = 0.999  # opaque: exercises the alpha clamp and early termination
     f = fx_scale * width
     K = torch.tensor([[f, 0, principal[0] * width], [0, f * fy_ratio, principal[1] * height], [0, 0, 1]], dtype=d)

@@ -40,11 +40,11 @@ def test_torch_float64_matches_bruteforce_sh():
     np.testing.assert_allclose(alpha.numpy(), a_ref, atol=1e-9)
 
 
-@pytest.mark.parametrize("sh_degree", [None, 2])
-def test_torch_gradients_match_finite_differences(sh_degree):
+@pytest.mark.parametrize("sh_degree,fast", [(None, False), (3, True)])
+def test_torch_gradients_match_finite_differences(sh_degree, fast):
     seed = fresh_seed("torch-fd")
     w, h = 20, 17
-    scene = random_scene(12, w, h, seed, dtype=torch.float64, sh_degree=sh_degree, log_scale_mean=-1.5)
+    scene = random_scene(8, w, h, seed, dtype=torch.float64, sh_degree=sh_degree, log_scale_mean=-1.5)
     means, quats, scales, opac, colors, V, K = scene
     weights = torch.rand(h, w, 4, dtype=torch.float64, generator=torch.Generator().manual_seed(seed))
     bg = torch.tensor([0.3, 0.1, 0.7], dtype=torch.float64)
@@ -55,4 +55,5 @@ def test_torch_gradients_match_finite_differences(sh_degree):
         return (img * weights).sum() + alpha.sum()
 
     inputs = [t.clone().requires_grad_(True) for t in (means, quats, scales, opac, colors, bg)]
-    assert torch.autograd.gradcheck(f, inputs, eps=1e-6, atol=1e-5, rtol=1e-4)
+    # fast_mode checks random directional derivatives (a few forwards) instead of every input element.
+    assert torch.autograd.gradcheck(f, inputs, eps=1e-6, atol=1e-5, rtol=1e-4, fast_mode=fast)
