@@ -8,6 +8,7 @@ off (``read_image_with_alpha``). Float images (EXR) are taken as they are (no co
 
 from __future__ import annotations
 
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
@@ -70,16 +71,32 @@ def apply_orientation(array: np.ndarray, orientation: int) -> np.ndarray:
     return array
 
 
-def image_size(path: str | Path) -> tuple[int, int]:
-    """(width, height) as ``read_image`` would return it (orientation applied), reading only the header."""
+@dataclass
+class ImageHeader:
+    width: int  # as read_image returns it (orientation applied)
+    height: int
+    orientation: int  # EXIF orientation of the stored pixels, 1 = as stored
+    channels: int
+    pixel_type: str  # "uint8", "uint16", "half", "float", ...
+
+
+def read_header(path: str | Path) -> ImageHeader:
+    """Size, orientation and pixel type of an image, reading only its header."""
     path = Path(path)
     inp = _open(path)
     try:
         spec = inp.spec()
-        w, h = spec.width, spec.height
-        return (h, w) if _orientation(spec) >= 5 else (w, h)
+        orientation = _orientation(spec)
+        w, h = (spec.height, spec.width) if orientation >= 5 else (spec.width, spec.height)
+        return ImageHeader(w, h, orientation, spec.nchannels, str(spec.format))
     finally:
         inp.close()
+
+
+def image_size(path: str | Path) -> tuple[int, int]:
+    """(width, height) as ``read_image`` would return it (orientation applied), reading only the header."""
+    header = read_header(path)
+    return header.width, header.height
 
 
 def read_image_with_alpha(path: str | Path) -> tuple[np.ndarray, np.ndarray | None]:

@@ -23,9 +23,10 @@ from pathlib import Path
 
 import numpy as np
 
-from training.colmap_io import find_model_folder, is_model_folder, read_colmap_model
+from training.colmap_io import find_model_folder, read_colmap_model
 from training.errors import InputError
-from training.image_io import image_size, is_image_file, read_image_with_alpha, resize_image, write_image
+from training.image_io import (image_size, is_image_file, read_header, read_image_with_alpha, resize_image,
+                               write_image)
 from training.raw_view import RawView, copy_lens
 from training.scene import Camera, Scene
 from training.undistort import pinhole_of, remap, undistorted_pinhole, undistortion_map
@@ -215,15 +216,7 @@ def _read_view_image(src: Path, cached: Path, downscale: int) -> tuple[np.ndarra
 
 def _cache_pixel_type(src: Path) -> str:
     """Keep the source's precision in the cache: 8-bit stays 8-bit, 16-bit PNG/TIFF stay 16-bit, float EXR float."""
-    import OpenImageIO as oiio
-
-    inp = oiio.ImageInput.open(str(src))
-    if inp is None:
-        return "uint8"
-    try:
-        fmt = str(inp.spec().format)
-    finally:
-        inp.close()
+    fmt = read_header(src).pixel_type
     ext = src.suffix.lower()
     if ext in (".jpg", ".jpeg", ".bmp", ".webp"):
         return "uint8"
@@ -231,5 +224,3 @@ def _cache_pixel_type(src: Path) -> str:
         return "float" if ext in (".exr", ".tif", ".tiff", ".hdr") else "uint16"
     return "uint16" if fmt in ("uint16", "int16", "uint32", "int32") else "uint8"
 
-
-__all__ = ["load_scene", "is_model_folder"]
