@@ -3,6 +3,8 @@ and errors for empty or degenerate point clouds."""
 
 from __future__ import annotations
 
+from pathlib import Path
+
 import numpy as np
 import pytest
 import torch
@@ -154,3 +156,22 @@ def test_random_init_model_is_deterministic_and_valid():
 def test_random_init_needs_cameras():
     with pytest.raises(InputError, match="no cameras"):
         gaussians_random(Scene(cameras=[], images=[], source=None), 100)
+
+
+def test_random_init_on_fox_lands_in_its_training_views():
+    fox = Path(__file__).resolve().parents[1].parent / "shared" / "data" / "scenes" / "fox"
+    if not fox.exists():
+        pytest.skip(f"shared data not found at {fox}")
+    from training.scene_loader import load_scene
+
+    scene = load_scene(fox, load_images=False)
+    g = gaussians_random(scene, 3000, sh_degree=3, seed=0)
+    pts = g.means.double().numpy()
+    inside = np.zeros(len(pts), bool)
+    for i in scene.train_indices:
+        cam = scene.cameras[i]
+        uv, z = project(cam, pts)
+        inside |= ((z > 0) & (uv[:, 0] >= 0) & (uv[:, 0] <= cam.width) & (uv[:, 1] >= 0)
+                   & (uv[:, 1] <= cam.height))
+    assert inside.all()
+    assert torch.isfinite(g.log_scales).all() and len(g) == 3000

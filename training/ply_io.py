@@ -202,6 +202,24 @@ def _read_vertex_table(path: Path, fmt: str, elements: list[_Element], start: in
     return table.astype(dtype.newbyteorder("="))
 
 
+def _check_attributes(path: Path, props: set[str], elements: list[_Element]) -> tuple[list[str], int]:
+    """The f_rest names in order and the SH degree they give; InputError for missing or odd attributes."""
+    missing = [a for a in _REQUIRED if a not in props]
+    if missing:
+        hint = ""
+        if "packed_position" in props or any(e.name == "chunk" for e in elements):
+            hint = " (this looks like a compressed PLY; decompress it to a standard 3DGS PLY first)"
+        raise InputError(path, f"not a 3DGS Gaussian PLY: missing attribute(s) {', '.join(missing)}{hint}")
+    rest_names = sorted((p for p in props if p.startswith("f_rest_")), key=lambda s: (len(s), s))
+    n_rest = len(rest_names)
+    if rest_names != [f"f_rest_{i}" for i in range(n_rest)]:
+        raise InputError(path, "f_rest attributes are not numbered 0..M-1 without gaps")
+    degrees = {3 * (num_sh_coeffs(d) - 1): d for d in range(MAX_SH_DEGREE + 1)}
+    if n_rest not in degrees:
+        raise InputError(path, f"has {n_rest} f_rest attributes; SH degrees 0..3 need 0, 9, 24 or 45")
+    return rest_names, degrees[n_rest]
+
+
 def read_ply(path: str | Path, device: str | torch.device = "cpu") -> Gaussians:
     """Read a Gaussian PLY (standard 3DGS layout, SH degree 0..3) into float32 tensors on ``device``.
 
@@ -219,25 +237,14 @@ def read_ply(path: str | Path, device: str | torch.device = "cpu") -> Gaussians:
         with open(path, "rb") as f:
             head = f.read(_MAX_HEADER_BYTES)
         fmt, elements, comments, start = _parse_header(path, head)
+        vertex = next((e for e in elements if e.name == "vertex"), None)
+        if vertex is None:
+            raise InputError(path, "PLY file has no 'vertex' element")
+        # Attributes are checked from the header first: a file missing them is refused before its data is read.
+        rest_names, file_degree = _check_attributes(path, {name for name, _ in vertex.properties}, elements)
         table = _read_vertex_table(path, fmt, elements, start)
     except OSError as exc:
         raise InputError(path, f"cannot read: {exc.strerror or exc}") from None
-    props = set(table.dtype.names or ())
-
-    missing = [a for a in _REQUIRED if a not in props]
-    if missing:
-        hint = ""
-        if "packed_position" in props or any(e.name == "chunk" for e in elements):
-            hint = " (this looks like a compressed PLY; decompress it to a standard 3DGS PLY first)"
-        raise InputError(path, f"not a 3DGS Gaussian PLY: missing attribute(s) {', '.join(missing)}{hint}")
-    rest_names = sorted((p for p in props if p.startswith("f_rest_")), key=lambda s: (len(s), s))
-    n_rest = len(rest_names)
-    if rest_names != [f"f_rest_{i}" for i in range(n_rest)]:
-        raise InputError(path, "f_rest attributes are not numbered 0..M-1 without gaps")
-    degrees = {3 * (num_sh_coeffs(d) - 1): d for d in range(MAX_SH_DEGREE + 1)}
-    if n_rest not in degrees:
-        raise InputError(path, f"has {n_rest} f_rest attributes; SH degrees 0..3 need 0, 9, 24 or 45")
-    file_degree = degrees[n_rest]
     n = len(table)
     if n == 0:
         raise InputError(path, "PLY file holds no Gaussians (vertex count 0)")
