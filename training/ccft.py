@@ -30,7 +30,8 @@ UNREACHABLE_B = 1e-12
 @dataclass
 class SparsePlan:
     indices: torch.Tensor  # (n, K) int64: style feature j of each support edge
-    values: torch.Tensor  # (n, K) float64: transported mass T_ij on that edge (rows sum to 1/n)
+    values: torch.Tensor  # (n, K) float64: transported mass T_ij on that edge (rows sum to ~1/n: exactly
+    # after a u update, and Sinkhorn ends on a v update)
 
 
 @dataclass
@@ -38,7 +39,7 @@ class CCFTResult:
     loss: torch.Tensor  # scalar, differentiable w.r.t. X (through the cost only)
     guide: torch.Tensor  # (m, C) detached, unit rows (zero where no mass arrived): the next view's guide map
     plan: SparsePlan
-    column_mass: torch.Tensor  # (m,) float64: mass received by each style feature (sums to 1)
+    column_mass: torch.Tensor  # (m,) float64: mass received by each style feature (sums to ~1)
     cost: torch.Tensor  # (n, K) detached cost on the support
     reachable: torch.Tensor  # (m,) bool: style features on at least one support edge
     utilisation: float  # fraction of reachable style features with column mass >= half of uniform (1 / |J|)

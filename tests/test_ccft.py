@@ -1,0 +1,190 @@
+"""CCFT loss (Algorithm 1) against POT, brute force and finite differences; numerical safety; the guide map."""
+
+from __future__ import annotations
+
+import math
+import warnings
+
+import numpy as np
+import pytest
+import torch
+
+from training.ccft import ccft_loss, gathered_row_dot, l2_normalise, transport_cost
+
+ot = pytest.importorskip("ot", reason="POT is the reference for the transport plan (pip install POT)")
+
+
+def relu_features(n: int, c: int, seed: int, dtype=torch.float64) -> torch.Tensor:
+    """ReLU-like non-negative features, as VGG's relu3_x are."""
+    g = torch.Generator().manual_seed(seed)
+    return torch.relu(torch.randn(n, c, generator=g, dtype=dtype) + 0.2)
+
+
+def pot_plan(result, n: int, epsilon: float, tau: float, iters: int, columns: np.ndarray | None = None) -> np.ndarray:
+    """POT's semi-unbalanced Sinkhorn on the same support: dense cost with 1e3 off the support.
+
+    columns: restrict the problem to these style features (the reachable ones): POT stops at a column with zero
+    mass, while the unreachable columns carry no edge and change nothing in Algorithm 1."""
+    idx = result.plan.indices.numpy()
+    m = result.column_mass.shape[0]
+    M = np.full((n, m), 1e3)
+    np.put_along_axis(M, idx, result.cost.numpy().astype(np.float64), axis=1)
+    reach = result.reachable.numpy()
+    b = np.where(reach, 1.0 / reach.sum(), 1e-12)
+    if columns is not None:
+        M, b = M[:, columns], b[columns]
+    a = np.full(n, 1.0 / n)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")  # POT says it overwrites c for reg_type='entropy': expected
+        return ot.unbalanced.sinkhorn_unbalanced(a, b, M, epsilon, (float("inf"), tau), reg_type="entropy",
+                                                 numItermax=iters, stopThr=0, method="sinkhorn")
+
+
+def dense_plan(result, n: int, m: int) -> np.ndarray:
+    D = np.zeros((n, m))
+    np.put_along_axis(D, result.plan.indices.numpy(), result.plan.values.numpy(), axis=1)
+    return D
+
+
+@pytest.mark.parametrize("epsilon,tau,iters", [(0.05, 0.5, 50), (0.01, 0.1, 50), (0.05, 1.0, 100), (0.1, 0.01, 30)])
+def test_plan_equals_pot(epsilon, tau, iters):
+    n, m, c = 300, 200, 64
+    X, Y = relu_features(n, c, 1), relu_features(m, c, 2)
+    r = ccft_loss(X, Y, k=16, epsilon=epsilon, tau=tau, iters=iters)
+    assert bool(r.reachable.all()), "this problem is meant to reach every column"
+    P = pot_plan(r, n, epsilon, tau, iters)
+    D = dense_plan(r, n, m)
+    assert np.abs(P - D).max() <= 1e-10
+    assert P.max() > 1e-4  # a real plan, not two zero matrices
+    # the loss is the transport cost under that plan
+    assert abs(float(r.loss) - float((P * dense_cost(r, n, m)).sum())) <= 1e-10
+
+
+def dense_cost(r, n, m):
+    Cd = np.zeros((n, m))
+    np.put_along_axis(Cd, r.plan.indices.numpy(), r.cost.numpy(), axis=1)
+    return Cd
+
+
+def test_plan_equals_pot_with_unreachable_columns_and_guide():
+    n, m, c = 120, 400, 32
+    X, Y = relu_features(n, c, 3), relu_features(m, c, 4)
+    first = ccft_loss(X, Y, k=8, epsilon=0.05, tau=0.5, iters=50)
+    X2 = X + 0.3 * relu_features(n, c, 5)  # the "next view"
+    r = ccft_loss(X2, Y, first.guide, k=8, epsilon=0.05, tau=0.5, lambda_guide=1.0, iters=50)
+    reach = r.reachable.numpy()
+    assert 0 < reach.sum() < m  # some style features are unreachable
+    cols = np.flatnonzero(reach)
+    P = pot_plan(r, n, 0.05, 0.5, 50, columns=cols)
+    D = dense_plan(r, n, m)
+    assert np.abs(P - D[:, cols]).max() <= 1e-10
+    assert np.all(D[:, ~reach] == 0)
+    assert np.allclose(r.column_mass.numpy(), D.sum(axis=0), rtol=0, atol=1e-15)
+
+
+@pytest.mark.parametrize("tau", [0.01, 0.5, 10.0, math.inf])
+def test_no_nan_at_small_epsilon_with_unreachable_columns(tau):
+    n, m, c = 64, 1000, 48
+    X = relu_features(n, c, 6, torch.float32).requires_grad_(True)
+    Y = relu_features(m, c, 7, torch.float32)
+    Y[:10] = 0  # all-zero style features (flat regions of a painting) must not break the normalisation
+    r = ccft_loss(X, Y, k=4, epsilon=0.01, tau=tau, iters=200)
+    assert int(r.reachable.sum()) < m
+    r.loss.backward()
+    for name, t in [("loss", r.loss), ("plan", r.plan.values), ("guide", r.guide), ("column_mass", r.column_mass),
+                    ("grad", X.grad)]:
+        assert torch.isfinite(t).all(), name
+    # a real plan: non-negative, about unit mass (rows are exact after a u update; the last update is v's)
+    assert float(r.plan.values.min()) >= 0 and 0.8 < float(r.plan.values.sum()) < 1.25
+    assert math.isfinite(r.column_entropy) and 0 <= r.utilisation <= 1
+
+
+def test_far_costs_at_small_epsilon_stay_finite():
+    """Costs near 2 (opposite features) make exp(-C/eps) = exp(-200): the log domain must carry it."""
+    n, m, c = 50, 60, 16
+    X = relu_features(n, c, 8)
+    Y = -relu_features(m, c, 9)  # every cosine <= 0: costs in [1, 2]
+    Y[:, 0] = 1e-3
+    r = ccft_loss(X, Y, k=16, epsilon=0.01, tau=0.1, iters=100)
+    assert torch.isfinite(r.plan.values).all() and torch.isfinite(r.loss)
+    assert float(r.cost.min()) > 0.9
+    np.testing.assert_allclose(r.plan.values.sum(dim=1).numpy(), 1.0 / n, rtol=0.05)
+
+
+def test_gradient_matches_finite_differences_with_plan_fixed():
+    n, m, c = 20, 30, 8
+    X = relu_features(n, c, 10).requires_grad_(True)
+    Y = relu_features(m, c, 11)
+    r = ccft_loss(X, Y, k=5, epsilon=0.05, tau=0.5, iters=50)
+    (grad,) = torch.autograd.grad(r.loss, X)
+    # the loss equals the transport cost of the returned plan
+    assert abs(float(r.loss) - float(transport_cost(X.detach(), Y, r.plan))) < 1e-14
+    h = 1e-6
+    fd = torch.zeros_like(X)
+    with torch.no_grad():
+        for i in range(n):
+            for j in range(c):
+                Xp, Xm = X.detach().clone(), X.detach().clone()
+                Xp[i, j] += h
+                Xm[i, j] -= h
+                fd[i, j] = (transport_cost(Xp, Y, r.plan) - transport_cost(Xm, Y, r.plan)) / (2 * h)
+    assert float(grad.abs().max()) > 1e-4
+    torch.testing.assert_close(grad, fd, rtol=1e-6, atol=1e-8)
+
+
+def test_gathered_row_dot_backward_matches_dense_autograd():
+    n, m, c, k = 37, 23, 12, 6
+    X = relu_features(n, c, 12).requires_grad_(True)
+    Y = relu_features(m, c, 13).requires_grad_(True)
+    idx = torch.randint(0, m, (n, k), generator=torch.Generator().manual_seed(0))
+    w = relu_features(n, k, 14)
+    (gX, gY) = torch.autograd.grad((gathered_row_dot(X, Y, idx, chunk_elements=50) * w).sum(), (X, Y))
+    (rX, rY) = torch.autograd.grad(((X.unsqueeze(1) * Y[idx]).sum(-1) * w).sum(), (X, Y))
+    torch.testing.assert_close(gX, rX, rtol=1e-12, atol=1e-12)
+    torch.testing.assert_close(gY, rY, rtol=1e-12, atol=1e-12)
+
+
+def test_support_is_dense_top_k_and_chunking_changes_nothing():
+    n, m, c, k = 90, 70, 24, 7
+    X, Y = relu_features(n, c, 15), relu_features(m, c, 16)
+    big = ccft_loss(X, Y, k=k)
+    small = ccft_loss(X, Y, k=k, chunk_elements=m * 4 + 3)  # 4 rows a chunk, ragged last chunk
+    S = l2_normalise(X) @ l2_normalise(Y).t()
+    ref = torch.topk(S, k, dim=1).indices
+    assert torch.equal(big.plan.indices, ref) and torch.equal(small.plan.indices, ref)
+    torch.testing.assert_close(big.plan.values, small.plan.values, rtol=0, atol=1e-15)
+    torch.testing.assert_close(big.guide, small.guide, rtol=1e-12, atol=1e-12)
+
+
+def test_guide_map_is_the_plan_weighted_mean_and_changes_the_support():
+    n, m, c, k = 200, 150, 32, 8
+    X, Y = relu_features(n, c, 17), relu_features(m, c, 18)
+    r = ccft_loss(X, Y, k=k)
+    # brute force: G_j = normalise(sum_i T_ij x_i / |x_i|)
+    D = torch.from_numpy(dense_plan(r, n, m))
+    G = D.t() @ l2_normalise(X)
+    G = G / G.norm(dim=1, keepdim=True).clamp_min(1e-12)
+    torch.testing.assert_close(r.guide, G, rtol=1e-10, atol=1e-12)
+    assert not r.guide.requires_grad
+    # the next view: with guidance the support follows the previous view's matches
+    X2 = X + 0.5 * relu_features(n, c, 19)
+    plain = ccft_loss(X2, Y, r.guide, k=k, lambda_guide=0.0)
+    guided = ccft_loss(X2, Y, r.guide, k=k, lambda_guide=1.0)
+    nothing = ccft_loss(X2, Y, None, k=k, lambda_guide=1.0)
+    assert torch.equal(plain.plan.indices, nothing.plan.indices)
+    changed = (plain.plan.indices.sort(dim=1).values != guided.plan.indices.sort(dim=1).values).any(dim=1)
+    assert int(changed.sum()) > n // 10
+    S = l2_normalise(X2) @ (l2_normalise(Y) + r.guide).t()
+    assert torch.equal(guided.plan.indices, torch.topk(S, k, dim=1).indices)
+
+
+def test_bad_arguments():
+    X, Y = relu_features(10, 4, 20), relu_features(12, 4, 21)
+    with pytest.raises(ValueError):
+        ccft_loss(X, relu_features(12, 5, 22))
+    with pytest.raises(ValueError):
+        ccft_loss(X, Y, epsilon=0.0)
+    with pytest.raises(ValueError):
+        ccft_loss(X, Y, guide=torch.zeros(11, 4))
+    r = ccft_loss(X, Y, k=50)  # K larger than m: every style feature is on every row's support
+    assert r.plan.indices.shape == (10, 12)
