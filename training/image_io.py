@@ -2,8 +2,8 @@
 
 Any format OpenImageIO reads (PNG, JPEG, EXR, TIFF, ...), 8/16-bit integer or float. The EXIF orientation is
 applied, so arrays come out the way a photo viewer shows them. Grey images become RGB; an alpha channel is split
-off (``read_image_with_alpha``). Float images (EXR) are taken as they are (no colour transform) and clipped to
-[0, 1]. A file that cannot be decoded completely (truncated, corrupt, missing) raises ``InputError`` naming it.
+off (``read_image_with_alpha``); colour is always straight (not premultiplied), whatever the format stores. Float
+images (EXR) are taken as they are (no colour transform) and clipped to [0, 1]. A file that cannot be decoded completely (truncated, corrupt, missing) raises ``InputError`` naming it.
 """
 
 from __future__ import annotations
@@ -34,7 +34,10 @@ def _open(path: Path):
     oiio = _oiio()
     if not path.exists():
         raise InputError(path, "image file not found")
-    inp = oiio.ImageInput.open(str(path))
+    config = oiio.ImageSpec()
+    # Ask for colour as stored, not premultiplied by alpha (OpenImageIO associates alpha by default).
+    config.attribute("oiio:UnassociatedAlpha", 1)
+    inp = oiio.ImageInput.open(str(path), config)
     if inp is None:
         raise InputError(path, f"cannot read image ({_one_line(oiio.geterror()) or 'unknown format'})")
     return inp
@@ -114,6 +117,7 @@ def read_image_with_alpha(path: str | Path) -> tuple[np.ndarray, np.ndarray | No
                                    "the file is truncated or corrupt")
         orientation = _orientation(spec)
         alpha_index = spec.alpha_channel
+        associated = spec.get_int_attribute("oiio:UnassociatedAlpha", 0) != 1
     finally:
         inp.close()
     data = np.asarray(data, dtype=np.float32).reshape(spec.height, spec.width, nch)
@@ -127,6 +131,9 @@ def read_image_with_alpha(path: str | Path) -> tuple[np.ndarray, np.ndarray | No
         rgb = data[..., color_channels[:3]]
     else:
         rgb = np.repeat(data[..., color_channels[:1]], 3, axis=2)
+    if alpha is not None and associated and alpha_index == spec.alpha_channel:
+        # Formats that store premultiplied colour (EXR): divide it out so RGB means the same for every format.
+        rgb = np.where(alpha[..., None] > 0, rgb / np.maximum(alpha[..., None], 1e-12), rgb)
     rgb = apply_orientation(rgb, orientation)
     rgb = np.ascontiguousarray(np.clip(np.nan_to_num(rgb, nan=0.0), 0.0, 1.0), dtype=np.float32)
     if alpha is not None:
@@ -185,6 +192,9 @@ def write_image(path: str | Path, array: np.ndarray, dtype: str | None = None, q
     spec = oiio.ImageSpec(w, h, c, dtype)
     if c == 4:
         spec.alpha_channel = 3
+        spec.attribute("oiio:UnassociatedAlpha", 1)  # our RGB is straight colour; PNG/TIFF store it that way
+        if ext in (".exr", ".hdr"):  # these formats always hold premultiplied colour
+            array = np.concatenate([array[..., :3] * array[..., 3:], array[..., 3:]], axis=2)
     if ext in (".jpg", ".jpeg"):
         spec.attribute("Compression", f"jpeg:{int(quality)}")
     with atomic_path(path) as tmp:
