@@ -154,3 +154,33 @@ def test_console_command_exit_code_and_no_traceback(tmp_path):
     assert "Traceback" not in proc.stderr
     assert proc.stderr.strip() == f"splatstyler: error: {bad}: PLY file is truncated: header declares 300 vertices " \
                                   "(74400 bytes), the file holds 1000 bytes (~4 vertices)"
+
+
+def test_info_json_on_colmap_scene_with_points(tmp_path, capsys):
+    from tests.test_gaussian_init import ring_scene
+    from training.colmap_io import write_colmap_model
+    from training.gaussian_init import gaussians_from_points
+    from training.image_io import write_image
+    from training.scene_loader import load_scene
+
+    scene = ring_scene(10)
+    rng = np.random.default_rng(0)
+    for cam in scene.cameras:
+        cam.name += ".png"
+        write_image(tmp_path / "images" / cam.name, rng.uniform(size=(cam.height, cam.width, 3)).astype(np.float32))
+    pts = rng.normal(size=(80, 3)).astype(np.float32)
+    write_colmap_model(tmp_path / "sparse" / "0", scene.cameras, pts, rng.uniform(size=(80, 3)).astype(np.float32))
+
+    code, out, err = run_cli(capsys, "info", tmp_path, "--json")
+    assert code == 0, err
+    s = json.loads(out)
+    assert s["kind"] == "scene" and s["num_cameras"] == 10 and s["num_points"] == 80
+    assert s["has_point_colors"] and s["num_train"] == 8 and s["test_indices"] == [0, 8]
+    assert s["image_sizes"] == [{"width": 64, "height": 48, "count": 10}]
+    np.testing.assert_allclose(s["points_bounds_min"], pts.min(0), rtol=1e-6)
+    assert s["extent"] == pytest.approx(scene.extent, rel=1e-6)
+
+    # The loaded points initialise one Gaussian each.
+    loaded = load_scene(tmp_path, load_images=False)
+    g = gaussians_from_points(loaded.points, loaded.point_colors, source=loaded.source)
+    assert len(g) == 80 and torch.isfinite(g.log_scales).all()
