@@ -22,6 +22,12 @@ FOX = SHARED / "data" / "scenes" / "fox"
 needs_fox = pytest.mark.skipif(not (FOX / "transforms.json").exists(), reason="shared fox scene not available")
 
 
+@pytest.fixture(autouse=True)
+def _private_cache(tmp_path, monkeypatch):
+    """The fox folder is read-only, so a downscaled copy would go to the user cache: keep it in tmp instead."""
+    monkeypatch.setenv("SPLATSTYLER_CACHE", str(tmp_path / "cache"))
+
+
 def _project(cam, p):
     pc = cam.world_to_camera[:3, :3] @ p + cam.world_to_camera[:3, 3]
     return np.array([cam.fx * pc[0] / pc[2] + cam.cx, cam.fy * pc[1] / pc[2] + cam.cy]), pc[2]
