@@ -228,6 +228,7 @@ def test_image_of_other_aspect_ratio_is_refused(tmp_path):
     cams = _cameras(2)
     _scene_folder(tmp_path, cams)
     write_image(tmp_path / "images" / cams[0].name, _textured(32, 32))
-    with pytest.raises(InputError) as info:
-        load_scene(tmp_path)
-    assert "aspect ratio" in str(info.value) and info.value.path == tmp_path / "images" / cams[0].name
+    for downscale in (1, 2):
+        with pytest.raises(InputError) as info:
+            load_scene(tmp_path, downscale=downscale)
+        assert "aspect ratio" in str(info.value) and info.value.path == tmp_path / "images" / cams[0].name

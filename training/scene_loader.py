@@ -166,11 +166,13 @@ def _build_scene(source: Path, views: list[RawView], sources: list[Path], cached
             h = max(1, round(view.lens.height / downscale))
 
         full_w, full_h = view.lens.width, view.lens.height
-        if downscale == 1 and load_images and (w, h) != (full_w, full_h):
-            # The image on disk is not the size the model says: accept a uniform resize only.
+        if load_images and (w, h) != (full_w, full_h):
+            # Not the size the model says (or a downscaled copy of it): accept a uniform resize only. Rounding
+            # each side to whole pixels moves w*H - h*W by at most (W + H) / 2.
             if abs(w * full_h - h * full_w) > max(full_w, full_h):
-                raise InputError(src, f"image is {w}x{h} but its camera in {source.name} is {full_w}x{full_h} "
-                                      "(different aspect ratio)")
+                size = f"{w}x{h}" + (f" at downscale {downscale}" if downscale > 1 else "")
+                raise InputError(src, f"image is {size}, not the aspect ratio of its camera in {source.name} "
+                                      f"({full_w}x{full_h})")
         lens = copy_lens(view.lens)
         if (w, h) != (lens.width, lens.height):
             lens.rescale(w, h)

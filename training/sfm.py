@@ -97,7 +97,7 @@ def run_sfm(photos_dir: str | Path, output: str | Path, max_size: int = 1600, ma
         seconds["copy"] = time.perf_counter() - t
 
         database = work / "database.db"
-        sizes = {read_header(p).width * 100000 + read_header(p).height for p in sorted(image_dir.iterdir())}
+        sizes = {(h.width, h.height) for h in map(read_header, sorted(image_dir.iterdir()))}
         camera_mode = pycolmap.CameraMode.SINGLE if len(sizes) == 1 else pycolmap.CameraMode.AUTO
         log(f"[2/5] extracting SIFT features from {len(photos)} photos (at most {max_features} each)")
         t = time.perf_counter()
