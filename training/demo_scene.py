@@ -1,6 +1,6 @@
 """The built-in demo scene: a procedural, richly textured 3D still life that our own code models and renders.
 
-A bounded tiled floor, a brick back wall and five objects (three spheres, a cube and a pillar) carry solid
+A tiled floor, brick walls on three sides and five objects (three spheres, a cube and a pillar) carry solid
 procedural textures (gradient noise, tiles, bricks, marble, dots, checker, stripes) whose detail reaches a few
 pixels, so that SIFT finds features for SfM and a stylizer has structure to work with. A numpy ray caster renders
 it exactly (analytic ray/object intersection, Lambert shading with one directional light, hard shadows, 2x2
@@ -8,8 +8,8 @@ supersampling) from cameras along a smooth arc, all looking at the centre. Shadi
 surface point has one colour in every view; the "SfM points" are coloured surface samples that at least one
 camera sees.
 
-World frame: z up, floor at z = 0, the objects around the origin, the wall at y = +3.5; the cameras stand on the
-y < 0 side. Cameras use the project's OpenCV convention (see ``training.scene``).
+World frame: z up, floor at z = 0, the objects around the origin, walls at y = +3.5 and x = -7, +7; the cameras
+stand on the open y < 0 side. Cameras use the project's OpenCV convention (see ``training.scene``).
 """
 
 from __future__ import annotations
@@ -39,8 +39,9 @@ class _Rect:
     """An axis-aligned rectangle in the plane x[axis] = value, two-sided (the normal faces the incoming ray)."""
 
     def __init__(self, axis: int, value: float, lo: tuple[float, float], hi: tuple[float, float],
-                 normal_sign: float):
+                 normal_sign: float, texture_shift: float = 0.0):
         self.axis, self.value = axis, value
+        self.texture_shift = texture_shift  # walls sharing a texture get different parts of it
         self.others = [a for a in range(3) if a != axis]
         self.lo, self.hi = np.array(lo), np.array(hi)
         self.normal = np.zeros(3)
@@ -70,7 +71,8 @@ class _Rect:
         return p, np.broadcast_to(self.normal, p.shape).copy()
 
     def local(self, p: np.ndarray) -> np.ndarray:
-        return p
+        """(in-plane u, in-plane v, offset along the normal): for walls u runs along the wall and v up."""
+        return np.stack([p[:, self.others[0]] + self.texture_shift, p[:, self.others[1]], p[:, self.axis]], -1)
 
 
 class _Sphere:
@@ -184,7 +186,10 @@ class DemoWorld:
         self.noise = GradientNoise(seed)
         self.objects = [
             _Rect(2, 0.0, (-14.0, -14.0), (14.0, 14.0), +1.0),  # floor
-            _Rect(1, 3.5, (-8.0, 0.0), (8.0, 5.0), -1.0),  # back wall, facing the cameras
+            # Back and side walls: a room open towards the cameras, so that no view looks out at a blank sky.
+            _Rect(1, 3.5, (-7.0, 0.0), (7.0, 5.0), -1.0),
+            _Rect(0, -7.0, (-6.5, 0.0), (3.5, 5.0), +1.0, texture_shift=-40.0),
+            _Rect(0, 7.0, (-6.5, 0.0), (3.5, 5.0), -1.0, texture_shift=40.0),
             _Sphere((0.0, 0.4, 0.95), 0.95),
             _Sphere((-1.75, -0.55, 0.55), 0.55),
             _Sphere((1.55, 1.25, 0.6), 0.6),
@@ -192,7 +197,7 @@ class DemoWorld:
             _Box((-1.25, 1.65, 0.95), (0.28, 0.28, 0.95), np.radians(-17.0)),
         ]
         self.textures: list[Callable[[np.ndarray], np.ndarray]] = [
-            self._floor, self._wall, self._marble, self._swirl, self._dots, self._checker, self._stripes,
+            self._floor, self._wall, self._wall, self._wall, self._marble, self._swirl, self._dots, self._checker, self._stripes,
         ]
 
     # --- geometry -------------------------------------------------------------------------------------------------
@@ -256,7 +261,7 @@ class DemoWorld:
 
     # --- textures (solid: functions of the point in the object's own frame) ----------------------------------------
 
-    def _speckle(self, q: np.ndarray, frequency: float = 13.0) -> np.ndarray:
+    def _speckle(self, q: np.ndarray, frequency: float = 8.0) -> np.ndarray:
         """Fine brightness grain that gives every surface pixel-scale features. (N, 3) -> (N,)."""
         return 0.12 * self.noise(q * frequency)
 
@@ -278,7 +283,7 @@ class DemoWorld:
 
     def _wall(self, q: np.ndarray) -> np.ndarray:
         bw, bh = 0.5, 0.25
-        row = np.floor(q[:, 2] / bh)
+        row = np.floor(q[:, 1] / bh)
         x = q[:, 0] / bw + 0.5 * (row % 2)
         col = np.floor(x)
         hue = hash_uniform(col, row, seed=self.seed + 21)
@@ -290,7 +295,7 @@ class DemoWorld:
         mural = hsv_to_rgb(0.6 + 1.5 * paint, 0.8, 0.9)
         brick = _mix(brick, mural, 0.75 * _smoothstep(0.05, 0.12, paint))
         brick = brick * (1.0 + 0.25 * self.noise.fbm(q * 3.0, octaves=3) + self._speckle(q))[:, None]
-        fx, fz = x - col, q[:, 2] / bh - row
+        fx, fz = x - col, q[:, 1] / bh - row
         edge = np.minimum(np.minimum(fx, 1.0 - fx) * bw, np.minimum(fz, 1.0 - fz) * bh)
         return _mix(np.array([0.82, 0.80, 0.76]), brick, _smoothstep(0.012, 0.022, edge))
 
@@ -316,7 +321,8 @@ class DemoWorld:
         return colour * (1.0 + self._speckle(q))[:, None]
 
     def _checker(self, q: np.ndarray) -> np.ndarray:
-        c = np.floor(q / 0.14)
+        # Half a square of offset: the faces lie at multiples of the square size, where floor() would flicker.
+        c = np.floor(q / 0.14 + 0.5)
         odd = (c.sum(axis=1) % 2).astype(bool)
         colour = np.where(odd[:, None], np.array([0.85, 0.12, 0.10]), np.array([0.96, 0.82, 0.22]))
         return colour * (1.0 + 0.3 * self.noise.fbm(q * 4.0, octaves=3) + self._speckle(q))[:, None]
@@ -369,9 +375,9 @@ class DemoWorld:
     def sample_surface(self, rng: np.random.Generator, count: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """``count`` surface samples, denser on the objects than on floor and wall -> points (count, 3),
         normals (count, 3) (the side the cameras see), object ids (count,)."""
-        density = np.array([1.0, 1.0] + [8.0] * (len(self.objects) - 2))
+        density = np.array([1.0, 0.6, 0.6, 0.6] + [8.0] * (len(self.objects) - 4))
         # The floor beyond the cameras' reach would only waste samples: sample its central part.
-        areas = np.array([6.0 * 6.0 * 1.6, self.objects[1].area] + [o.area for o in self.objects[2:]])
+        areas = np.array([12.0 * 8.0] + [o.area for o in self.objects[1:]])
         weights = density * areas
         per_object = rng.multinomial(count, weights / weights.sum())
         points, normals, ids = [], [], []
