@@ -1,0 +1,591 @@
+"""CPU rasterizer: numba kernels for projection, tile binning, compositing and their hand-written backward.
+
+Same semantics as the reference (training/raster_torch.py). Pipeline, all on float32 arrays shared with torch
+without copies (``tensor.numpy()``):
+
+1. ``_project_fwd`` (parallel over Gaussians, float64 inside): EWA covariance + low-pass, conic, pixel mean,
+   screen box where alpha can reach 1/255, culling (near/far, opacity, off-screen, degenerate).
+2. ``_bin`` : Gaussians in global depth order (one stable argsort of the visible depths) are counted and then
+   scattered into per-tile lists, so every list comes out sorted front to back without a per-pair sort.
+3. ``_composite_fwd`` (parallel over tiles): Gaussian-outer, pixel-inner over the Gaussian's box inside the
+   tile, per-pixel transmittance/accumulators in tile-local arrays; stores each pixel's final T and the count
+   of list entries it consumed ("last").
+4. ``_composite_bwd`` (parallel over tiles): walks each tile's list back to front, recovering T before each
+   Gaussian as T_after / (1 - alpha) like the CUDA kernels, with per-pixel state in float64. Per-Gaussian
+   gradients are summed per tile and added into a per-thread buffer (one row block per numba thread), reduced
+   afterwards: no two threads ever write the same memory.
+5. ``_project_bwd`` (parallel over Gaussians): screen-space gradients to means, quats, scales.
+
+SH colours are evaluated with torch (training/sh.py, O(N)) before the compositing Function, so autograd
+carries their gradient to the coefficients and the view direction.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numba
+import numpy as np
+import torch
+from numba import njit, prange
+
+from training.sh import sh_to_rgb
+
+ALPHA_MIN = 1.0 / 255.0
+ALPHA_MAX = 0.99
+T_MIN = 1e-4
+# The exp() is skipped when the exponent is this far below log(1/(255 o)): alpha is then certainly under
+# 1/255 whatever the rounding of exp, so skipping cannot change which Gaussians composite.
+SKIP_MARGIN = 1e-3
+PROJ_CHUNK = 512
+
+# No fastmath on anything that decides whether a Gaussian composites: forward and backward must take the very
+# same decisions from the same float operations.
+_jit = dict(cache=True, nogil=True)
+
+
+@njit(parallel=True, **_jit)
+def _project_fwd(means, quats, scales, opac, view, kmat, width, height, near, far, eps2d,
+                 means2d, conics, depths, radii):
+    n = means.shape[0]
+    fx, fy, cx, cy = kmat[0, 0], kmat[1, 1], kmat[0, 2], kmat[1, 2]
+    tan_fovx = 0.5 * width / fx
+    tan_fovy = 0.5 * height / fy
+    lim_xp = (width - cx) / fx + 0.3 * tan_fovx
+    lim_xn = cx / fx + 0.3 * tan_fovx
+    lim_yp = (height - cy) / fy + 0.3 * tan_fovy
+    lim_yn = cy / fy + 0.3 * tan_fovy
+    nchunks = (n + PROJ_CHUNK - 1) // PROJ_CHUNK
+    for ch in prange(nchunks):
+        rot = np.empty((3, 3))
+        M = np.empty((3, 3))
+        Mc = np.empty((3, 3))
+        for i in range(ch * PROJ_CHUNK, min(n, (ch + 1) * PROJ_CHUNK)):
+            radii[i, 0] = 0
+            radii[i, 1] = 0
+            means2d[i, 0] = 0.0
+            means2d[i, 1] = 0.0
+            conics[i, 0] = 0.0
+            conics[i, 1] = 0.0
+            conics[i, 2] = 0.0
+            m0, m1, m2 = np.float64(means[i, 0]), np.float64(means[i, 1]), np.float64(means[i, 2])
+            x = view[0, 0] * m0 + view[0, 1] * m1 + view[0, 2] * m2 + view[0, 3]
+            y = view[1, 0] * m0 + view[1, 1] * m1 + view[1, 2] * m2 + view[1, 3]
+            z = view[2, 0] * m0 + view[2, 1] * m1 + view[2, 2] * m2 + view[2, 3]
+            depths[i] = z
+            if not (z >= near and z <= far):
+                continue
+            o = np.float64(opac[i])
+            if not (opac[i] >= np.float32(ALPHA_MIN)):
+                continue
+            _rotmat(quats[i, 0], quats[i, 1], quats[i, 2], quats[i, 3], rot)
+            # M = R_view * rot * S, so Sigma_cam = M M^T
+            for r in range(3):
+                for c in range(3):
+                    M[r, c] = rot[r, c] * scales[i, c]
+            for r in range(3):
+                for c in range(3):
+                    Mc[r, c] = view[r, 0] * M[0, c] + view[r, 1] * M[1, c] + view[r, 2] * M[2, c]
+            u = min(max(x / z, -lim_xn), lim_xp)
+            v = min(max(y / z, -lim_yn), lim_yp)
+            j00 = fx / z
+            j02 = -fx * u / z
+            j11 = fy / z
+            j12 = -fy * v / z
+            # rows of J Mc: cov2 = (J Mc)(J Mc)^T
+            a0 = j00 * Mc[0, 0] + j02 * Mc[2, 0]
+            a1 = j00 * Mc[0, 1] + j02 * Mc[2, 1]
+            a2 = j00 * Mc[0, 2] + j02 * Mc[2, 2]
+            b0 = j11 * Mc[1, 0] + j12 * Mc[2, 0]
+            b1 = j11 * Mc[1, 1] + j12 * Mc[2, 1]
+            b2 = j11 * Mc[1, 2] + j12 * Mc[2, 2]
+            ca = a0 * a0 + a1 * a1 + a2 * a2 + eps2d
+            cb = a0 * b0 + a1 * b1 + a2 * b2
+            cc = b0 * b0 + b1 * b1 + b2 * b2 + eps2d
+            det = ca * cc - cb * cb
+            if not det > 0.0:
+                continue
+            px = fx * x / z + cx
+            py = fy * y / z + cy
+            extend = math.sqrt(2.0 * math.log(max(o, ALPHA_MIN) / ALPHA_MIN))
+            rx = math.ceil(extend * math.sqrt(ca))
+            ry = math.ceil(extend * math.sqrt(cc))
+            if not (rx > 0 and ry > 0 and rx < 2.0**30 and ry < 2.0**30):
+                continue
+            if not (px + rx > 0 and px - rx < width and py + ry > 0 and py - ry < height):
+                continue
+            means2d[i, 0] = px
+            means2d[i, 1] = py
+            conics[i, 0] = cc / det
+            conics[i, 1] = -cb / det
+            conics[i, 2] = ca / det
+            radii[i, 0] = np.int32(rx)
+            radii[i, 1] = np.int32(ry)
+
+
+@njit(inline="always", **_jit)
+def _rotmat(qw, qx, qy, qz, out):
+    w, x, y, z = np.float64(qw), np.float64(qx), np.float64(qy), np.float64(qz)
+    norm = max(math.sqrt(w * w + x * x + y * y + z * z), 1e-12)
+    w, x, y, z = w / norm, x / norm, y / norm, z / norm
+    out[0, 0] = 1 - 2 * (y * y + z * z)
+    out[0, 1] = 2 * (x * y - w * z)
+    out[0, 2] = 2 * (x * z + w * y)
+    out[1, 0] = 2 * (x * y + w * z)
+    out[1, 1] = 1 - 2 * (x * x + z * z)
+    out[1, 2] = 2 * (y * z - w * x)
+    out[2, 0] = 2 * (x * z - w * y)
+    out[2, 1] = 2 * (y * z + w * x)
+    out[2, 2] = 1 - 2 * (x * x + y * y)
+
+
+@njit(parallel=True, **_jit)
+def _project_bwd(means, quats, scales, view, kmat, width, height, eps2d, radii, v_means2d, v_conics, v_depths,
+                 v_means, v_quats, v_scales):
+    """Gradients of (means2d, conics, depths) to (means, quats, scales); culled Gaussians get zeros."""
+    n = means.shape[0]
+    fx, fy, cx, cy = kmat[0, 0], kmat[1, 1], kmat[0, 2], kmat[1, 2]
+    tan_fovx = 0.5 * width / fx
+    tan_fovy = 0.5 * height / fy
+    lim_xp = (width - cx) / fx + 0.3 * tan_fovx
+    lim_xn = cx / fx + 0.3 * tan_fovx
+    lim_yp = (height - cy) / fy + 0.3 * tan_fovy
+    lim_yn = cy / fy + 0.3 * tan_fovy
+    nchunks = (n + PROJ_CHUNK - 1) // PROJ_CHUNK
+    for ch in prange(nchunks):
+        rot = np.empty((3, 3))
+        M = np.empty((3, 3))  # rot S
+        Sc = np.empty((3, 3))  # Sigma_cam
+        S = np.empty((3, 3))  # Sigma_world
+        tmp = np.empty((3, 3))
+        VSc = np.empty((3, 3))
+        VS = np.empty((3, 3))
+        VM = np.empty((3, 3))
+        for i in range(ch * PROJ_CHUNK, min(n, (ch + 1) * PROJ_CHUNK)):
+            for k in range(3):
+                v_means[i, k] = 0.0
+                v_scales[i, k] = 0.0
+            for k in range(4):
+                v_quats[i, k] = 0.0
+            if radii[i, 0] <= 0:
+                continue
+            m0, m1, m2 = np.float64(means[i, 0]), np.float64(means[i, 1]), np.float64(means[i, 2])
+            x = view[0, 0] * m0 + view[0, 1] * m1 + view[0, 2] * m2 + view[0, 3]
+            y = view[1, 0] * m0 + view[1, 1] * m1 + view[1, 2] * m2 + view[1, 3]
+            z = view[2, 0] * m0 + view[2, 1] * m1 + view[2, 2] * m2 + view[2, 3]
+            _rotmat(quats[i, 0], quats[i, 1], quats[i, 2], quats[i, 3], rot)
+            for r in range(3):
+                for c in range(3):
+                    M[r, c] = rot[r, c] * scales[i, c]
+            for r in range(3):
+                for c in range(3):
+                    S[r, c] = M[r, 0] * M[c, 0] + M[r, 1] * M[c, 1] + M[r, 2] * M[c, 2]
+            for r in range(3):  # tmp = R S
+                for c in range(3):
+                    tmp[r, c] = view[r, 0] * S[0, c] + view[r, 1] * S[1, c] + view[r, 2] * S[2, c]
+            for r in range(3):  # Sc = R S R^T
+                for c in range(3):
+                    Sc[r, c] = tmp[r, 0] * view[c, 0] + tmp[r, 1] * view[c, 1] + tmp[r, 2] * view[c, 2]
+            xz, yz = x / z, y / z
+            u = min(max(xz, -lim_xn), lim_xp)
+            v = min(max(yz, -lim_yn), lim_yp)
+            j00 = fx / z
+            j02 = -fx * u / z
+            j11 = fy / z
+            j12 = -fy * v / z
+            # cov2 = J Sc J^T + eps: recompute a, b, c and the conic
+            t00 = j00 * Sc[0, 0] + j02 * Sc[2, 0]
+            t01 = j00 * Sc[0, 1] + j02 * Sc[2, 1]
+            t02 = j00 * Sc[0, 2] + j02 * Sc[2, 2]
+            t10 = j11 * Sc[1, 0] + j12 * Sc[2, 0]
+            t11 = j11 * Sc[1, 1] + j12 * Sc[2, 1]
+            t12 = j11 * Sc[1, 2] + j12 * Sc[2, 2]
+            # the conic in float64 (the stored one is float32)
+            ca = t00 * j00 + t02 * j02 + eps2d
+            cb = t01 * j11 + t02 * j12
+            cc = t11 * j11 + t12 * j12 + eps2d
+            det = ca * cc - cb * cb
+            qa, qb, qc = cc / det, -cb / det, ca / det
+            ga, gb, gc = np.float64(v_conics[i, 0]), 0.5 * np.float64(v_conics[i, 1]), np.float64(v_conics[i, 2])
+            # V2 = -Q G Q (symmetric gradient of the 2D covariance)
+            h00 = qa * ga + qb * gb
+            h01 = qa * gb + qb * gc
+            h10 = qb * ga + qc * gb
+            h11 = qb * gb + qc * gc
+            w00 = -(h00 * qa + h01 * qb)
+            w01 = -(h00 * qb + h01 * qc)
+            w11 = -(h10 * qb + h11 * qc)
+            # v_Sc = J^T V2 J ; J = [[j00, 0, j02], [0, j11, j12]]
+            p0 = w00 * j00  # (V2 J) row 0
+            p1 = w01 * j11
+            p2 = w00 * j02 + w01 * j12
+            q0 = w01 * j00  # (V2 J) row 1
+            q1 = w11 * j11
+            q2 = w01 * j02 + w11 * j12
+            VSc[0, 0] = j00 * p0
+            VSc[0, 1] = j00 * p1
+            VSc[0, 2] = j00 * p2
+            VSc[1, 0] = j11 * q0
+            VSc[1, 1] = j11 * q1
+            VSc[1, 2] = j11 * q2
+            VSc[2, 0] = j02 * p0 + j12 * q0
+            VSc[2, 1] = j02 * p1 + j12 * q1
+            VSc[2, 2] = j02 * p2 + j12 * q2
+            # v_J = 2 V2 J Sc, only the four non-constant entries
+            vj00 = 2.0 * (p0 * Sc[0, 0] + p1 * Sc[1, 0] + p2 * Sc[2, 0])
+            vj02 = 2.0 * (p0 * Sc[0, 2] + p1 * Sc[1, 2] + p2 * Sc[2, 2])
+            vj11 = 2.0 * (q0 * Sc[0, 1] + q1 * Sc[1, 1] + q2 * Sc[2, 1])
+            vj12 = 2.0 * (q0 * Sc[0, 2] + q1 * Sc[1, 2] + q2 * Sc[2, 2])
+            # v_S = R^T v_Sc R
+            for r in range(3):
+                for c in range(3):
+                    tmp[r, c] = view[0, r] * VSc[0, c] + view[1, r] * VSc[1, c] + view[2, r] * VSc[2, c]
+            for r in range(3):
+                for c in range(3):
+                    VS[r, c] = tmp[r, 0] * view[0, c] + tmp[r, 1] * view[1, c] + tmp[r, 2] * view[2, c]
+            # v_M = (v_S + v_S^T) M
+            for r in range(3):
+                for c in range(3):
+                    VM[r, c] = ((VS[r, 0] + VS[0, r]) * M[0, c] + (VS[r, 1] + VS[1, r]) * M[1, c]
+                                + (VS[r, 2] + VS[2, r]) * M[2, c])
+            for c in range(3):
+                v_scales[i, c] = VM[0, c] * rot[0, c] + VM[1, c] * rot[1, c] + VM[2, c] * rot[2, c]
+            for r in range(3):  # v_rot, stored in tmp
+                for c in range(3):
+                    tmp[r, c] = VM[r, c] * scales[i, c]
+            qw, qx, qy, qz = np.float64(quats[i, 0]), np.float64(quats[i, 1]), np.float64(quats[i, 2]), \
+                np.float64(quats[i, 3])
+            norm = math.sqrt(qw * qw + qx * qx + qy * qy + qz * qz)
+            if norm > 1e-12:
+                w_, x_, y_, z_ = qw / norm, qx / norm, qy / norm, qz / norm
+                gw = 2 * (-z_ * tmp[0, 1] + y_ * tmp[0, 2] + z_ * tmp[1, 0] - x_ * tmp[1, 2]
+                          - y_ * tmp[2, 0] + x_ * tmp[2, 1])
+                gx = 2 * (y_ * tmp[0, 1] + z_ * tmp[0, 2] + y_ * tmp[1, 0] - 2 * x_ * tmp[1, 1]
+                          - w_ * tmp[1, 2] + z_ * tmp[2, 0] + w_ * tmp[2, 1] - 2 * x_ * tmp[2, 2])
+                gy = 2 * (-2 * y_ * tmp[0, 0] + x_ * tmp[0, 1] + w_ * tmp[0, 2] + x_ * tmp[1, 0]
+                          + z_ * tmp[1, 2] - w_ * tmp[2, 0] + z_ * tmp[2, 1] - 2 * y_ * tmp[2, 2])
+                gz = 2 * (-2 * z_ * tmp[0, 0] - w_ * tmp[0, 1] + x_ * tmp[0, 2] + w_ * tmp[1, 0]
+                          - 2 * z_ * tmp[1, 1] + y_ * tmp[1, 2] + x_ * tmp[2, 0] + y_ * tmp[2, 1])
+                dot = w_ * gw + x_ * gx + y_ * gy + z_ * gz
+                v_quats[i, 0] = (gw - w_ * dot) / norm
+                v_quats[i, 1] = (gx - x_ * dot) / norm
+                v_quats[i, 2] = (gy - y_ * dot) / norm
+                v_quats[i, 3] = (gz - z_ * dot) / norm
+            # camera-space point gradient: from J, from the pixel mean, from the depth channel
+            iz2 = 1.0 / (z * z)
+            vx = 0.0
+            vy = 0.0
+            vz = -vj00 * fx * iz2 - vj11 * fy * iz2 + np.float64(v_depths[i])
+            if -lim_xn < xz < lim_xp:  # J02 = -fx x / z^2
+                vx += -vj02 * fx * iz2
+                vz += vj02 * 2.0 * fx * x * iz2 / z
+            else:  # J02 = -fx u / z with u clamped (constant)
+                vz += vj02 * fx * u * iz2
+            if -lim_yn < yz < lim_yp:
+                vy += -vj12 * fy * iz2
+                vz += vj12 * 2.0 * fy * y * iz2 / z
+            else:
+                vz += vj12 * fy * v * iz2
+            gmx, gmy = np.float64(v_means2d[i, 0]), np.float64(v_means2d[i, 1])
+            vx += gmx * fx / z
+            vy += gmy * fy / z
+            vz -= (gmx * fx * x + gmy * fy * y) * iz2
+            for k in range(3):
+                v_means[i, k] = view[0, k] * vx + view[1, k] * vy + view[2, k] * vz
+
+
+@njit(**_jit)
+def _bin(order, means2d, radii, tile_size, tiles_x, tiles_y):
+    """Per-tile lists of Gaussian ids in the order given (front to back). Returns (offsets, ids)."""
+    n_tiles = tiles_x * tiles_y
+    counts = np.zeros(n_tiles + 1, np.int64)
+    n = order.shape[0]
+    rect = np.empty((n, 4), np.int64)
+    for k in range(n):
+        g = order[k]
+        mx, my = np.float64(means2d[g, 0]), np.float64(means2d[g, 1])
+        rx, ry = np.float64(radii[g, 0]), np.float64(radii[g, 1])
+        x0 = min(max(int(math.floor((mx - rx) / tile_size)), 0), tiles_x)
+        x1 = min(max(int(math.ceil((mx + rx) / tile_size)), 0), tiles_x)
+        y0 = min(max(int(math.floor((my - ry) / tile_size)), 0), tiles_y)
+        y1 = min(max(int(math.ceil((my + ry) / tile_size)), 0), tiles_y)
+        rect[k, 0], rect[k, 1], rect[k, 2], rect[k, 3] = x0, x1, y0, y1
+        for ty in range(y0, y1):
+            for tx in range(x0, x1):
+                counts[ty * tiles_x + tx + 1] += 1
+    offsets = np.cumsum(counts)
+    cursor = offsets[:-1].copy()
+    ids = np.empty(offsets[-1], np.int32)
+    for k in range(n):
+        g = order[k]
+        for ty in range(rect[k, 2], rect[k, 3]):
+            for tx in range(rect[k, 0], rect[k, 1]):
+                t = ty * tiles_x + tx
+                ids[cursor[t]] = g
+                cursor[t] += 1
+    return offsets, ids
+
+
+@njit(inline="always", **_jit)
+def _box(mx, my, rx, ry, x0, x1, y0, y1):
+    """Pixel range of a Gaussian's screen box inside a tile (a superset of where alpha >= 1/255)."""
+    bx0 = max(x0, int(math.floor(mx - rx)) - 1)
+    bx1 = min(x1, int(math.ceil(mx + rx)) + 1)
+    by0 = max(y0, int(math.floor(my - ry)) - 1)
+    by1 = min(y1, int(math.ceil(my + ry)) + 1)
+    return bx0, bx1, by0, by1
+
+
+@njit(inline="always", **_jit)
+def _power(mx, my, ca, cb, cc, px, py):
+    dx = mx - (np.float32(px) + np.float32(0.5))
+    dy = my - (np.float32(py) + np.float32(0.5))
+    return np.float32(-0.5) * (ca * dx * dx + cc * dy * dy) - cb * dx * dy, dx, dy
+
+
+@njit(parallel=True, **_jit)
+def _composite_fwd(offsets, ids, means2d, conics, opac, feats, radii, width, height, tile_size, tiles_x,
+                   out_feat, out_t, out_last):
+    n_tiles = offsets.shape[0] - 1
+    n_ch = feats.shape[1]
+    for t in prange(n_tiles):
+        ty, tx = t // tiles_x, t % tiles_x
+        x0, y0 = tx * tile_size, ty * tile_size
+        x1, y1 = min(x0 + tile_size, width), min(y0 + tile_size, height)
+        tw = x1 - x0
+        n_pix = tw * (y1 - y0)
+        T = np.ones(n_pix)
+        acc = np.zeros((n_pix, n_ch))
+        last = np.zeros(n_pix, np.int32)
+        done = np.zeros(n_pix, np.bool_)
+        remaining = n_pix
+        s = offsets[t]
+        for j in range(s, offsets[t + 1]):
+            g = ids[j]
+            mx, my = means2d[g, 0], means2d[g, 1]
+            ca, cb, cc = conics[g, 0], conics[g, 1], conics[g, 2]
+            o = opac[g]
+            log_thr = math.log(ALPHA_MIN / np.float64(o)) - SKIP_MARGIN
+            bx0, bx1, by0, by1 = _box(mx, my, radii[g, 0], radii[g, 1], x0, x1, y0, y1)
+            for py in range(by0, by1):
+                for px in range(bx0, bx1):
+                    p = (py - y0) * tw + (px - x0)
+                    if done[p]:
+                        continue
+                    power, dx, dy = _power(mx, my, ca, cb, cc, px, py)
+                    if power > 0 or power < log_thr:
+                        continue
+                    alpha = min(np.float32(ALPHA_MAX), o * np.exp(power))
+                    if alpha < np.float32(ALPHA_MIN):
+                        continue
+                    next_t = T[p] * (1.0 - alpha)
+                    if next_t <= T_MIN:
+                        done[p] = True
+                        remaining -= 1
+                        continue
+                    w = alpha * T[p]
+                    for c in range(n_ch):
+                        acc[p, c] += feats[g, c] * w
+                    T[p] = next_t
+                    last[p] = j - s + 1
+            if remaining == 0:
+                break
+        for py in range(y0, y1):
+            for px in range(x0, x1):
+                p = (py - y0) * tw + (px - x0)
+                for c in range(n_ch):
+                    out_feat[py, px, c] = acc[p, c]
+                out_t[py, px] = T[p]
+                out_last[py, px] = last[p]
+
+
+@njit(parallel=True, **_jit)
+def _composite_bwd(offsets, ids, means2d, conics, opac, feats, radii, width, height, tile_size, tiles_x,
+                   out_t, out_last, g_feat, g_t, grad_buf):
+    """grad_buf: (threads, N, 6 + C) float64 zeroed; per Gaussian [mx, my, conic a, b, c, opacity, feats...]."""
+    n_tiles = offsets.shape[0] - 1
+    n_ch = feats.shape[1]
+    for t in prange(n_tiles):
+        tid = numba.get_thread_id()
+        ty, tx = t // tiles_x, t % tiles_x
+        x0, y0 = tx * tile_size, ty * tile_size
+        x1, y1 = min(x0 + tile_size, width), min(y0 + tile_size, height)
+        tw = x1 - x0
+        n_pix = tw * (y1 - y0)
+        T = np.empty(n_pix)
+        gT = np.empty(n_pix)  # dL/dT_final * T_final
+        gf = np.empty((n_pix, n_ch))
+        buf = np.zeros((n_pix, n_ch))
+        last = np.empty(n_pix, np.int32)
+        max_last = 0
+        for py in range(y0, y1):
+            for px in range(x0, x1):
+                p = (py - y0) * tw + (px - x0)
+                T[p] = out_t[py, px]
+                gT[p] = np.float64(g_t[py, px]) * np.float64(out_t[py, px])
+                for c in range(n_ch):
+                    gf[p, c] = g_feat[py, px, c]
+                last[p] = out_last[py, px]
+                max_last = max(max_last, last[p])
+        s = offsets[t]
+        vf = np.empty(n_ch)
+        for j in range(s + max_last - 1, s - 1, -1):
+            g = ids[j]
+            mx, my = means2d[g, 0], means2d[g, 1]
+            ca, cb, cc = conics[g, 0], conics[g, 1], conics[g, 2]
+            o = opac[g]
+            log_thr = math.log(ALPHA_MIN / np.float64(o)) - SKIP_MARGIN
+            bx0, bx1, by0, by1 = _box(mx, my, radii[g, 0], radii[g, 1], x0, x1, y0, y1)
+            vmx = 0.0
+            vmy = 0.0
+            va = 0.0
+            vb = 0.0
+            vc = 0.0
+            vo = 0.0
+            for c in range(n_ch):
+                vf[c] = 0.0
+            touched = False
+            jl = j - s
+            for py in range(by0, by1):
+                for px in range(bx0, bx1):
+                    p = (py - y0) * tw + (px - x0)
+                    if jl >= last[p]:
+                        continue
+                    power, dx, dy = _power(mx, my, ca, cb, cc, px, py)
+                    if power > 0 or power < log_thr:
+                        continue
+                    gauss = np.exp(power)
+                    alpha = min(np.float32(ALPHA_MAX), o * gauss)
+                    if alpha < np.float32(ALPHA_MIN):
+                        continue
+                    touched = True
+                    a64 = np.float64(alpha)
+                    one_minus = 1.0 - a64
+                    t_before = T[p] / one_minus
+                    T[p] = t_before
+                    w = a64 * t_before
+                    v_alpha = -gT[p] / one_minus
+                    for c in range(n_ch):
+                        f = np.float64(feats[g, c])
+                        vf[c] += w * gf[p, c]
+                        v_alpha += (f - buf[p, c]) * t_before * gf[p, c]
+                        buf[p, c] = a64 * f + one_minus * buf[p, c]
+                    if o * gauss <= np.float32(ALPHA_MAX):
+                        vo += v_alpha * gauss
+                        vpow = v_alpha * a64
+                        dx64, dy64 = np.float64(dx), np.float64(dy)
+                        vmx -= vpow * (ca * dx64 + cb * dy64)
+                        vmy -= vpow * (cc * dy64 + cb * dx64)
+                        va -= 0.5 * vpow * dx64 * dx64
+                        vb -= vpow * dx64 * dy64
+                        vc -= 0.5 * vpow * dy64 * dy64
+            if touched:
+                grad_buf[tid, g, 0] += vmx
+                grad_buf[tid, g, 1] += vmy
+                grad_buf[tid, g, 2] += va
+                grad_buf[tid, g, 3] += vb
+                grad_buf[tid, g, 4] += vc
+                grad_buf[tid, g, 5] += vo
+                for c in range(n_ch):
+                    grad_buf[tid, g, 6 + c] += vf[c]
+
+
+class _CompositeState:
+    """What the forward pass keeps for the backward pass (numpy arrays, float32 unless noted)."""
+
+    def __init__(self, **kw):
+        self.__dict__.update(kw)
+
+
+class _RasterizeCPU(torch.autograd.Function):
+    @staticmethod
+    def forward(ctx, means, quats, scales, opacities, features, means2d_leaf, st):
+        feats = features.detach().contiguous()
+        st.feats = feats.numpy()
+        H, W = st.height, st.width
+        out_feat = np.empty((H, W, st.feats.shape[1]), np.float32)
+        out_t = np.empty((H, W), np.float32)
+        out_last = np.empty((H, W), np.int32)
+        _composite_fwd(st.offsets, st.ids, st.means2d, st.conics, st.opac, st.feats, st.radii, W, H,
+                       st.tile_size, st.tiles_x, out_feat, out_t, out_last)
+        st.out_t, st.out_last = out_t, out_last
+        ctx.st = st
+        ctx.save_for_backward(means, quats, scales, opacities, feats)
+        return torch.from_numpy(out_feat), torch.from_numpy(out_t).unsqueeze(-1)
+
+    @staticmethod
+    def backward(ctx, g_feat, g_t):
+        st = ctx.st
+        means, quats, scales, opacities, feats = ctx.saved_tensors
+        n, n_ch = st.feats.shape
+        H, W = st.height, st.width
+        g_feat_np = (g_feat if g_feat is not None else torch.zeros(H, W, n_ch)).float().contiguous().numpy()
+        g_t_np = (g_t if g_t is not None else torch.zeros(H, W, 1)).float().contiguous().numpy()[..., 0]
+        grad_buf = np.zeros((numba.get_num_threads(), n, 6 + n_ch))
+        _composite_bwd(st.offsets, st.ids, st.means2d, st.conics, st.opac, st.feats, st.radii, W, H,
+                       st.tile_size, st.tiles_x, st.out_t, st.out_last, g_feat_np, g_t_np, grad_buf)
+        gsum = grad_buf.sum(axis=0)
+        v_means2d = gsum[:, 0:2].astype(np.float32)
+        v_conics = gsum[:, 2:5].astype(np.float32)
+        v_opac = torch.from_numpy(gsum[:, 5].astype(np.float32))
+        v_feats = torch.from_numpy(gsum[:, 6:].astype(np.float32))
+        v_depths = gsum[:, 5 + n_ch].astype(np.float32) if st.use_depth else np.zeros(n, np.float32)
+        v_means = np.empty((n, 3), np.float32)
+        v_quats = np.empty((n, 4), np.float32)
+        v_scales = np.empty((n, 3), np.float32)
+        _project_bwd(st.means, st.quats, st.scales, st.view, st.kmat, W, H, st.eps2d, st.radii, v_means2d, v_conics,
+                     v_depths, v_means, v_quats, v_scales)
+        if st.use_depth:
+            v_feats = v_feats.clone()
+            v_feats[:, -1] = 0.0  # the depth channel is not an input: its gradient went to the means above
+        return (torch.from_numpy(v_means), torch.from_numpy(v_quats), torch.from_numpy(v_scales), v_opac,
+                v_feats, torch.from_numpy(v_means2d), None)
+
+
+def render_features_cpu(means, quats, scales, opacities, colors, viewmat, K, width, height, sh_degree,
+                        use_rgb, use_depth, near_plane, far_plane, eps2d, tile_size):
+    """The cpu backend of ``training.rasterize.rasterize``: returns (features (H,W,C) without background,
+    final transmittance (H,W,1), means2d (N,2) whose .grad receives the screen-space gradient, radii (N,) int32,
+    depths (N,)). Gradients flow to means, quats, scales, opacities and colors (not to viewmat or K)."""
+    f32 = lambda t: t.detach().to(torch.float32).contiguous()
+    n = means.shape[0]
+    m_np, q_np, s_np, o_np = (f32(t).numpy() for t in (means, quats, scales, opacities))
+    view = viewmat.detach().to(torch.float64).contiguous().numpy()
+    kmat = K.detach().to(torch.float64).contiguous().numpy()
+    means2d = np.empty((n, 2), np.float32)
+    conics = np.empty((n, 3), np.float32)
+    depths = np.empty(n, np.float32)
+    radii = np.empty((n, 2), np.int32)
+    _project_fwd(m_np, q_np, s_np, o_np, view, kmat, width, height, near_plane, far_plane, eps2d,
+                 means2d, conics, depths, radii)
+    visible = np.flatnonzero(radii[:, 0] > 0)
+    order = visible[np.argsort(depths[visible], kind="stable")].astype(np.int64)
+    tiles_x = (width + tile_size - 1) // tile_size
+    tiles_y = (height + tile_size - 1) // tile_size
+    offsets, ids = _bin(order, means2d, radii, tile_size, tiles_x, tiles_y)
+
+    feats = []
+    if use_rgb:
+        if sh_degree is None:
+            feats.append(colors)
+        else:
+            campos = -viewmat[:3, :3].T @ viewmat[:3, 3]
+            feats.append(sh_to_rgb(sh_degree, colors, means, campos.to(means.dtype)))
+    if use_depth:
+        # The depth channel's values come from the projection; its gradient is routed by the Function.
+        feats.append(torch.from_numpy(depths).unsqueeze(-1))
+    features = torch.cat([f.to(torch.float32) for f in feats], dim=-1)
+
+    needs_grad = torch.is_grad_enabled() and any(
+        t.requires_grad for t in (means, quats, scales, opacities, colors))
+    means2d_t = torch.from_numpy(means2d).clone()
+    if needs_grad:
+        means2d_t.requires_grad_(True)
+    st = _CompositeState(means=m_np, quats=q_np, scales=s_np, opac=o_np, view=view, kmat=kmat, eps2d=eps2d,
+                         means2d=means2d, conics=conics, radii=radii, offsets=offsets, ids=ids, width=width,
+                         height=height, tile_size=tile_size, tiles_x=tiles_x, use_depth=use_depth)
+    feat_img, trans = _RasterizeCPU.apply(
+        means.to(torch.float32), quats.to(torch.float32), scales.to(torch.float32), opacities.to(torch.float32),
+        features, means2d_t, st)
+    radii_out = torch.from_numpy(radii.max(axis=1))
+    return feat_img, trans, means2d_t, radii_out, torch.from_numpy(depths)
