@@ -119,7 +119,10 @@ def test_folders_that_are_not_scenes(tmp_path):
     cases[empty] = "empty"
     photos = tmp_path / "photos"
     write_image(photos / "a.png", np.zeros((4, 4, 3)))
-    cases[photos] = "splatstyler sfm"
+    cases[photos] = f"splatstyler sfm {photos} -o"
+    nested = tmp_path / "nested"
+    write_image(nested / "images" / "a.jpg", np.zeros((4, 4, 3)))
+    cases[nested] = f"splatstyler sfm {nested / 'images'} -o"
     other = tmp_path / "other"
     (other / "stuff").mkdir(parents=True)
     (other / "notes.txt").write_text("hello")

@@ -11,8 +11,8 @@ source) are made from the originals (OpenImageIO resize, size round(W/N) x round
 intrinsics are scaled with the size of the image actually read, so a cache made by another tool with other
 rounding stays exact. Distortion is then removed (``training.undistort``) at that size.
 
-With ``load_images=False`` nothing is decoded or written: ``scene.images`` is [] and the cameras carry the sizes the
-images would have (from the model, or from a cached image's header when one is present).
+With ``load_images=False`` no image is decoded or written (only image headers of an existing cache are read):
+``scene.images`` is [] and the cameras carry the sizes the images would have.
 """
 
 from __future__ import annotations
@@ -50,20 +50,20 @@ def load_scene(path: str | Path, downscale: int = 1, load_images: bool = True) -
     model_folder = find_model_folder(path)
     if model_folder is not None:
         return _load_colmap(path, model_folder, downscale, load_images)
-    _explain_unknown_folder(path)
-    raise AssertionError("unreachable")
+    raise _not_a_scene(path)
 
 
-def _explain_unknown_folder(path: Path) -> None:
+def _not_a_scene(path: Path) -> InputError:
+    """The error for a folder holding neither format, saying what it holds instead."""
     entries = [p for p in path.iterdir() if not p.name.startswith(".")]
     if not entries:
-        raise InputError(path, "folder is empty: expected a COLMAP model (sparse/0 + images/) or transforms.json")
-    photos = [p for p in entries if is_image_file(p)]
-    if photos or (path / "images").is_dir():
-        raise InputError(path, "holds photos but no cameras (no sparse/ COLMAP model, no transforms.json); "
-                               f"run `splatstyler sfm {path} -o DATA` and load DATA")
-    raise InputError(path, "not a scene: no COLMAP model (sparse/0, sparse/ or cameras/images files) and no "
-                           "transforms.json")
+        return InputError(path, "folder is empty: expected a COLMAP model (sparse/0 + images/) or transforms.json")
+    photos_dir = path if any(is_image_file(p) for p in entries) else path / "images"
+    if photos_dir.is_dir() and any(is_image_file(p) for p in photos_dir.iterdir()):
+        return InputError(path, "holds photos but no cameras (no sparse/ COLMAP model, no transforms.json); "
+                                f"run `splatstyler sfm {photos_dir} -o DATA` and load DATA")
+    return InputError(path, "not a scene: no COLMAP model (sparse/0, sparse/ or cameras/images files) and no "
+                            "transforms.json")
 
 
 # ---- per-format front ends -------------------------------------------------------------------------------------

@@ -84,6 +84,7 @@ def run_sfm(photos_dir: str | Path, output: str | Path, max_size: int = 1600, ma
     if output.resolve() == photos_dir.resolve():
         raise InputError(output, "output must not be the photos folder")
 
+    previous_log_level = pycolmap.logging.minloglevel
     if not verbose:
         pycolmap.logging.minloglevel = 3  # COLMAP's own lines would drown ours; its failures reach us as results
     created_output = not output.exists()
@@ -154,6 +155,7 @@ def run_sfm(photos_dir: str | Path, output: str | Path, max_size: int = 1600, ma
         raise
     finally:
         shutil.rmtree(work, ignore_errors=True)
+        pycolmap.logging.minloglevel = previous_log_level
 
 
 def _stage_photos(photos: list[Path], image_dir: Path, max_size: int, log: Callable[[str], None],
