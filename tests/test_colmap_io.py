@@ -214,10 +214,13 @@ def test_truncated_image_in_scene_is_named(tmp_path):
 def test_missing_model_file_and_corrupt_model(tmp_path):
     cams = _cameras(2)
     _scene_folder(tmp_path, cams)
-    (tmp_path / "sparse" / "0" / "images.bin").unlink()
-    with pytest.raises(InputError) as info:
-        load_scene(tmp_path)
-    assert "images.bin" in str(info.value)
+    for name in ("images.bin", "points3D.bin", "frames.bin"):
+        data = (tmp_path / "sparse" / "0" / name).read_bytes()
+        (tmp_path / "sparse" / "0" / name).unlink()
+        with pytest.raises(InputError) as info:
+            load_scene(tmp_path)
+        assert info.value.path == tmp_path / "sparse" / "0" / name and "missing" in str(info.value)
+        (tmp_path / "sparse" / "0" / name).write_bytes(data)
     (tmp_path / "sparse" / "0" / "images.bin").write_bytes(b"\x01\x02garbage")
     with pytest.raises(InputError) as info:
         load_scene(tmp_path)

@@ -104,3 +104,26 @@ def test_cli_help_lists_options():
     assert proc.returncode == 0
     for option in ("--max-size", "--max-features", "--matcher", "-o"):
         assert option in proc.stdout
+
+
+def test_photos_are_staged_upright_and_shrunk(tmp_path):
+    import OpenImageIO as oiio
+
+    from training.sfm import _stage_photos
+
+    rng = np.random.default_rng(0)
+    rotated = rng.random((20, 40, 3)).astype(np.float32)
+    spec = oiio.ImageSpec(40, 20, 3, "uint8")
+    spec.attribute("Orientation", 6)  # a phone photo taken in portrait: stored landscape, shown rotated
+    out = oiio.ImageOutput.create(str(tmp_path / "phone.jpg"))
+    assert out.open(str(tmp_path / "phone.jpg"), spec) and out.write_image(rotated)
+    out.close()
+    write_image(tmp_path / "big.png", rng.random((60, 90, 3)))
+    write_image(tmp_path / "small.png", rng.random((30, 45, 3)))
+    staged = tmp_path / "staged"
+    _stage_photos(sorted(tmp_path.glob("*.*")), staged, 50, log=lambda s: None, progress=False)
+    upright = read_image(staged / "phone.jpg")
+    assert upright.shape == (40, 20, 3)  # the pixels themselves are upright now: COLMAP and we agree
+    assert np.abs(upright - read_image(tmp_path / "phone.jpg")).mean() < 0.05
+    assert read_image(staged / "big.png").shape == (33, 50, 3)  # long side shrunk to --max-size
+    assert (staged / "small.png").read_bytes() == (tmp_path / "small.png").read_bytes()  # untouched: copied

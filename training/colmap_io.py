@@ -10,6 +10,7 @@ models are refused with an error saying how to convert the data.
 from __future__ import annotations
 
 import os
+import re
 import shutil
 import tempfile
 from dataclasses import dataclass
@@ -46,8 +47,9 @@ def find_model_folder(path: Path) -> Path | None:
 
 
 def _one_line(exc: BaseException) -> str:
+    """The gist of a pycolmap exception: its last line, without glog's "[file.cc:123] " prefix."""
     lines = [line.strip() for line in str(exc).splitlines() if line.strip()]
-    return lines[-1] if lines else type(exc).__name__
+    return re.sub(r"^\[[^\]]*\]\s*", "", lines[-1]) if lines else type(exc).__name__
 
 
 def read_colmap_model(folder: str | Path) -> ColmapModel:
@@ -55,9 +57,16 @@ def read_colmap_model(folder: str | Path) -> ColmapModel:
     import pycolmap
 
     folder = Path(folder)
-    for name in ("cameras", "images"):
-        if not any((folder / f"{name}.{ext}").is_file() for ext in ("bin", "txt")):
-            raise InputError(folder / f"{name}.bin", "COLMAP model file missing (neither .bin nor .txt found)")
+    # pycolmap reads binary when cameras.bin exists, else text; check that format's files for a precise message
+    ext = "bin" if (folder / "cameras.bin").is_file() else "txt"
+    for name in ("cameras", "images", "points3D"):
+        if not (folder / f"{name}.{ext}").is_file():
+            raise InputError(folder / f"{name}.{ext}", "COLMAP model file missing")
+    rig_files = [(folder / f"{name}.{ext}").is_file() for name in ("rigs", "frames")]
+    if any(rig_files) and not all(rig_files):
+        missing = "frames" if rig_files[0] else "rigs"
+        raise InputError(folder / f"{missing}.{ext}", "COLMAP model file missing (pycolmap 4 models need both "
+                                                      "rigs and frames, classic ones neither)")
     try:
         rec = pycolmap.Reconstruction(str(folder))
     except Exception as exc:  # pycolmap raises plain RuntimeError/ValueError on malformed files
