@@ -141,10 +141,11 @@ def run_sfm(photos_dir: str | Path, output: str | Path, max_size: int = 1600, ma
         pycolmap.undistort_images(str(undistorted), str(best), str(image_dir), output_type="COLMAP")
         seconds["undistort"] = time.perf_counter() - t
 
-        (output / "sparse").mkdir()
-        os.replace(undistorted / "sparse", output / "sparse" / "0")
+        # the model goes in last: a folder with sparse/0 is a complete scene
         os.replace(undistorted / "images", output / "images")
         os.replace(database, output / "database.db")
+        (output / "sparse").mkdir()
+        os.replace(undistorted / "sparse", output / "sparse" / "0")
         return SfmResult(output, len(photos), reconstruction.num_reg_images(), reconstruction.num_points3D(),
                          matcher, seconds)
     except BaseException:
