@@ -3,7 +3,8 @@
 Any format OpenImageIO reads (PNG, JPEG, EXR, TIFF, ...), 8/16-bit integer or float. The EXIF orientation is
 applied, so arrays come out the way a photo viewer shows them. Grey images become RGB; an alpha channel is split
 off (``read_image_with_alpha``); colour is always straight (not premultiplied), whatever the format stores. Float
-images (EXR) are taken as they are (no colour transform) and clipped to [0, 1]. A file that cannot be decoded completely (truncated, corrupt, missing) raises ``InputError`` naming it.
+images (EXR) are taken as they are (no colour transform) and clipped to [0, 1]. A file that cannot be decoded
+completely (truncated, corrupt, missing) raises ``InputError`` naming it.
 """
 
 from __future__ import annotations
