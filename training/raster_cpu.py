@@ -16,8 +16,8 @@ without copies (``tensor.numpy()``):
    afterwards: no two threads ever write the same memory.
 5. ``_project_bwd`` (parallel over Gaussians): screen-space gradients to means, quats, scales.
 
-SH colours are evaluated with torch (training/sh.py, O(N)) before the compositing Function, so autograd
-carries their gradient to the coefficients and the view direction.
+SH colours (``_sh_fwd`` / ``_sh_bwd``) are evaluated only for visible Gaussians; their backward adds the
+view-direction term to the means' gradient.
 """
 
 from __future__ import annotations
@@ -29,7 +29,7 @@ import numpy as np
 import torch
 from numba import njit, prange
 
-from training.sh import sh_to_rgb
+from training.sh import SH_C0, SH_C1, SH_C2, SH_C3
 
 ALPHA_MIN = 1.0 / 255.0
 ALPHA_MAX = 0.99
@@ -490,6 +490,127 @@ def _composite_bwd(offsets, ids, means2d, conics, opac, feats, radii, width, hei
                     grad_buf[tid, g, 6 + c] += vf[c]
 
 
+@njit(inline="always", **_jit)
+def _sh_basis(x, y, z, degree, b, db):
+    """Basis values b[k] and their derivatives db[k, :] w.r.t. the (unit) direction components."""
+    for k in range(b.shape[0]):
+        b[k] = 0.0
+        db[k, 0] = 0.0
+        db[k, 1] = 0.0
+        db[k, 2] = 0.0
+    b[0] = SH_C0
+    if degree >= 1:
+        b[1] = -SH_C1 * y
+        b[2] = SH_C1 * z
+        b[3] = -SH_C1 * x
+        db[1, 1] = -SH_C1
+        db[2, 2] = SH_C1
+        db[3, 0] = -SH_C1
+    if degree >= 2:
+        xx, yy, zz = x * x, y * y, z * z
+        b[4] = SH_C2[0] * x * y
+        b[5] = SH_C2[1] * y * z
+        b[6] = SH_C2[2] * (2.0 * zz - xx - yy)
+        b[7] = SH_C2[3] * x * z
+        b[8] = SH_C2[4] * (xx - yy)
+        db[4, 0], db[4, 1] = SH_C2[0] * y, SH_C2[0] * x
+        db[5, 1], db[5, 2] = SH_C2[1] * z, SH_C2[1] * y
+        db[6, 0], db[6, 1], db[6, 2] = -2.0 * SH_C2[2] * x, -2.0 * SH_C2[2] * y, 4.0 * SH_C2[2] * z
+        db[7, 0], db[7, 2] = SH_C2[3] * z, SH_C2[3] * x
+        db[8, 0], db[8, 1] = 2.0 * SH_C2[4] * x, -2.0 * SH_C2[4] * y
+        if degree >= 3:
+            b[9] = SH_C3[0] * y * (3.0 * xx - yy)
+            b[10] = SH_C3[1] * x * y * z
+            b[11] = SH_C3[2] * y * (4.0 * zz - xx - yy)
+            b[12] = SH_C3[3] * z * (2.0 * zz - 3.0 * xx - 3.0 * yy)
+            b[13] = SH_C3[4] * x * (4.0 * zz - xx - yy)
+            b[14] = SH_C3[5] * z * (xx - yy)
+            b[15] = SH_C3[6] * x * (xx - 3.0 * yy)
+            db[9, 0], db[9, 1] = 6.0 * SH_C3[0] * x * y, SH_C3[0] * (3.0 * xx - 3.0 * yy)
+            db[10, 0], db[10, 1], db[10, 2] = SH_C3[1] * y * z, SH_C3[1] * x * z, SH_C3[1] * x * y
+            db[11, 0] = -2.0 * SH_C3[2] * x * y
+            db[11, 1] = SH_C3[2] * (4.0 * zz - xx - 3.0 * yy)
+            db[11, 2] = 8.0 * SH_C3[2] * y * z
+            db[12, 0] = -6.0 * SH_C3[3] * x * z
+            db[12, 1] = -6.0 * SH_C3[3] * y * z
+            db[12, 2] = SH_C3[3] * (6.0 * zz - 3.0 * xx - 3.0 * yy)
+            db[13, 0] = SH_C3[4] * (4.0 * zz - 3.0 * xx - yy)
+            db[13, 1] = -2.0 * SH_C3[4] * x * y
+            db[13, 2] = 8.0 * SH_C3[4] * x * z
+            db[14, 0], db[14, 1], db[14, 2] = 2.0 * SH_C3[5] * x * z, -2.0 * SH_C3[5] * y * z, SH_C3[5] * (xx - yy)
+            db[15, 0], db[15, 1] = SH_C3[6] * (3.0 * xx - 3.0 * yy), -6.0 * SH_C3[6] * x * y
+
+
+@njit(parallel=True, **_jit)
+def _sh_fwd(coeffs, means, campos, degree, radii, out_rgb):
+    """out_rgb (N, 3) = max(SH(dir) + 0.5, 0) for visible Gaussians, 0 for culled ones."""
+    n = means.shape[0]
+    nk = (degree + 1) ** 2
+    nchunks = (n + PROJ_CHUNK - 1) // PROJ_CHUNK
+    for ch in prange(nchunks):
+        b = np.empty(16)
+        db = np.empty((16, 3))
+        for i in range(ch * PROJ_CHUNK, min(n, (ch + 1) * PROJ_CHUNK)):
+            if radii[i, 0] <= 0:
+                for c in range(3):
+                    out_rgb[i, c] = 0.0
+                continue
+            dx = np.float64(means[i, 0]) - campos[0]
+            dy = np.float64(means[i, 1]) - campos[1]
+            dz = np.float64(means[i, 2]) - campos[2]
+            norm = max(math.sqrt(dx * dx + dy * dy + dz * dz), 1e-12)
+            _sh_basis(dx / norm, dy / norm, dz / norm, degree, b, db)
+            for c in range(3):
+                acc = 0.5
+                for k in range(nk):
+                    acc += b[k] * coeffs[i, k, c]
+                out_rgb[i, c] = max(acc, 0.0)
+
+
+@njit(parallel=True, **_jit)
+def _sh_bwd(coeffs, means, campos, degree, radii, rgb, v_rgb, v_coeffs, v_means):
+    """v_coeffs (N, K, 3) overwritten; v_means (N, 3) accumulated into (view-direction term)."""
+    n = means.shape[0]
+    nk = (degree + 1) ** 2
+    nchunks = (n + PROJ_CHUNK - 1) // PROJ_CHUNK
+    for ch in prange(nchunks):
+        b = np.empty(16)
+        db = np.empty((16, 3))
+        for i in range(ch * PROJ_CHUNK, min(n, (ch + 1) * PROJ_CHUNK)):
+            for k in range(coeffs.shape[1]):
+                for c in range(3):
+                    v_coeffs[i, k, c] = 0.0
+            if radii[i, 0] <= 0:
+                continue
+            dx = np.float64(means[i, 0]) - campos[0]
+            dy = np.float64(means[i, 1]) - campos[1]
+            dz = np.float64(means[i, 2]) - campos[2]
+            norm = max(math.sqrt(dx * dx + dy * dy + dz * dz), 1e-12)
+            ux, uy, uz = dx / norm, dy / norm, dz / norm
+            _sh_basis(ux, uy, uz, degree, b, db)
+            gx = 0.0
+            gy = 0.0
+            gz = 0.0
+            for c in range(3):
+                if rgb[i, c] <= 0.0:  # clamped at 0 (torch's clamp_min passes the gradient at exactly 0)
+                    acc = 0.5
+                    for k in range(nk):
+                        acc += b[k] * coeffs[i, k, c]
+                    if acc < 0.0:
+                        continue
+                g = np.float64(v_rgb[i, c])
+                for k in range(nk):
+                    v_coeffs[i, k, c] = b[k] * g
+                    cf = g * coeffs[i, k, c]
+                    gx += cf * db[k, 0]
+                    gy += cf * db[k, 1]
+                    gz += cf * db[k, 2]
+            dot = ux * gx + uy * gy + uz * gz
+            v_means[i, 0] += (gx - ux * dot) / norm
+            v_means[i, 1] += (gy - uy * dot) / norm
+            v_means[i, 2] += (gz - uz * dot) / norm
+
+
 class _CompositeState:
     """What the forward pass keeps for the backward pass (numpy arrays, float32 unless noted)."""
 
@@ -498,25 +619,36 @@ class _CompositeState:
 
 
 class _RasterizeCPU(torch.autograd.Function):
+    """(means, quats, scales, opacities, colors or SH, means2d leaf) -> (features (H,W,C), T_final (H,W,1))."""
+
     @staticmethod
-    def forward(ctx, means, quats, scales, opacities, features, means2d_leaf, st):
-        feats = features.detach().contiguous()
-        st.feats = feats.numpy()
+    def forward(ctx, means, quats, scales, opacities, colors, means2d_leaf, st):
+        n = st.means.shape[0]
         H, W = st.height, st.width
-        out_feat = np.empty((H, W, st.feats.shape[1]), np.float32)
+        feats = np.empty((n, st.n_ch), np.float32)
+        if st.use_rgb:
+            if st.sh_degree is None:
+                feats[:, :3] = st.colors
+            else:
+                rgb = np.empty((n, 3), np.float32)
+                _sh_fwd(st.colors, st.means, st.campos, st.sh_degree, st.radii, rgb)
+                feats[:, :3] = rgb
+                st.rgb = rgb
+        if st.use_depth:
+            feats[:, -1] = st.depths
+        st.feats = feats
+        out_feat = np.empty((H, W, st.n_ch), np.float32)
         out_t = np.empty((H, W), np.float32)
         out_last = np.empty((H, W), np.int32)
-        _composite_fwd(st.offsets, st.ids, st.means2d, st.conics, st.opac, st.feats, st.radii, W, H,
+        _composite_fwd(st.offsets, st.ids, st.means2d, st.conics, st.opac, feats, st.radii, W, H,
                        st.tile_size, st.tiles_x, out_feat, out_t, out_last)
         st.out_t, st.out_last = out_t, out_last
         ctx.st = st
-        ctx.save_for_backward(means, quats, scales, opacities, feats)
         return torch.from_numpy(out_feat), torch.from_numpy(out_t).unsqueeze(-1)
 
     @staticmethod
     def backward(ctx, g_feat, g_t):
         st = ctx.st
-        means, quats, scales, opacities, feats = ctx.saved_tensors
         n, n_ch = st.feats.shape
         H, W = st.height, st.width
         g_feat_np = (g_feat if g_feat is not None else torch.zeros(H, W, n_ch)).float().contiguous().numpy()
@@ -527,29 +659,35 @@ class _RasterizeCPU(torch.autograd.Function):
         gsum = grad_buf.sum(axis=0)
         v_means2d = gsum[:, 0:2].astype(np.float32)
         v_conics = gsum[:, 2:5].astype(np.float32)
-        v_opac = torch.from_numpy(gsum[:, 5].astype(np.float32))
-        v_feats = torch.from_numpy(gsum[:, 6:].astype(np.float32))
+        v_opac = gsum[:, 5].astype(np.float32)
         v_depths = gsum[:, 5 + n_ch].astype(np.float32) if st.use_depth else np.zeros(n, np.float32)
         v_means = np.empty((n, 3), np.float32)
         v_quats = np.empty((n, 4), np.float32)
         v_scales = np.empty((n, 3), np.float32)
-        _project_bwd(st.means, st.quats, st.scales, st.view, st.kmat, W, H, st.eps2d, st.radii, v_means2d, v_conics,
-                     v_depths, v_means, v_quats, v_scales)
-        if st.use_depth:
-            v_feats = v_feats.clone()
-            v_feats[:, -1] = 0.0  # the depth channel is not an input: its gradient went to the means above
-        return (torch.from_numpy(v_means), torch.from_numpy(v_quats), torch.from_numpy(v_scales), v_opac,
-                v_feats, torch.from_numpy(v_means2d), None)
+        _project_bwd(st.means, st.quats, st.scales, st.view, st.kmat, W, H, st.eps2d, st.radii, v_means2d,
+                     v_conics, v_depths, v_means, v_quats, v_scales)
+        v_colors = None
+        if st.use_rgb:
+            v_rgb = np.ascontiguousarray(gsum[:, 6:9], dtype=np.float32)
+            if st.sh_degree is None:
+                v_colors = v_rgb
+            else:
+                v_colors = np.empty(st.colors.shape, np.float32)
+                _sh_bwd(st.colors, st.means, st.campos, st.sh_degree, st.radii, st.rgb, v_rgb, v_colors, v_means)
+            v_colors = torch.from_numpy(v_colors)
+        return (torch.from_numpy(v_means), torch.from_numpy(v_quats), torch.from_numpy(v_scales),
+                torch.from_numpy(v_opac), v_colors, torch.from_numpy(v_means2d), None)
 
 
 def render_features_cpu(means, quats, scales, opacities, colors, viewmat, K, width, height, sh_degree,
                         use_rgb, use_depth, near_plane, far_plane, eps2d, tile_size):
     """The cpu backend of ``training.rasterize.rasterize``: returns (features (H,W,C) without background,
     final transmittance (H,W,1), means2d (N,2) whose .grad receives the screen-space gradient, radii (N,) int32,
-    depths (N,)). Gradients flow to means, quats, scales, opacities and colors (not to viewmat or K)."""
-    f32 = lambda t: t.detach().to(torch.float32).contiguous()
-    n = means.shape[0]
-    m_np, q_np, s_np, o_np = (f32(t).numpy() for t in (means, quats, scales, opacities))
+    depths (N,)). Gradients flow to means, quats, scales, opacities and colors (not to viewmat or K).
+    Inputs in another float dtype are converted to float32 (autograd converts their gradients back)."""
+    ins = [t.to(torch.float32) for t in (means, quats, scales, opacities, colors)]
+    m_np, q_np, s_np, o_np, c_np = (t.detach().contiguous().numpy() for t in ins)
+    n = m_np.shape[0]
     view = viewmat.detach().to(torch.float64).contiguous().numpy()
     kmat = K.detach().to(torch.float64).contiguous().numpy()
     means2d = np.empty((n, 2), np.float32)
@@ -564,28 +702,15 @@ def render_features_cpu(means, quats, scales, opacities, colors, viewmat, K, wid
     tiles_y = (height + tile_size - 1) // tile_size
     offsets, ids = _bin(order, means2d, radii, tile_size, tiles_x, tiles_y)
 
-    feats = []
-    if use_rgb:
-        if sh_degree is None:
-            feats.append(colors)
-        else:
-            campos = -viewmat[:3, :3].T @ viewmat[:3, 3]
-            feats.append(sh_to_rgb(sh_degree, colors, means, campos.to(means.dtype)))
-    if use_depth:
-        # The depth channel's values come from the projection; its gradient is routed by the Function.
-        feats.append(torch.from_numpy(depths).unsqueeze(-1))
-    features = torch.cat([f.to(torch.float32) for f in feats], dim=-1)
-
-    needs_grad = torch.is_grad_enabled() and any(
-        t.requires_grad for t in (means, quats, scales, opacities, colors))
+    needs_grad = torch.is_grad_enabled() and any(t.requires_grad for t in ins)
     means2d_t = torch.from_numpy(means2d).clone()
     if needs_grad:
         means2d_t.requires_grad_(True)
-    st = _CompositeState(means=m_np, quats=q_np, scales=s_np, opac=o_np, view=view, kmat=kmat, eps2d=eps2d,
-                         means2d=means2d, conics=conics, radii=radii, offsets=offsets, ids=ids, width=width,
-                         height=height, tile_size=tile_size, tiles_x=tiles_x, use_depth=use_depth)
-    feat_img, trans = _RasterizeCPU.apply(
-        means.to(torch.float32), quats.to(torch.float32), scales.to(torch.float32), opacities.to(torch.float32),
-        features, means2d_t, st)
+    st = _CompositeState(
+        means=m_np, quats=q_np, scales=s_np, opac=o_np, colors=c_np, view=view, kmat=kmat, eps2d=eps2d,
+        campos=-view[:3, :3].T @ view[:3, 3], sh_degree=sh_degree, use_rgb=use_rgb, use_depth=use_depth,
+        n_ch=3 * use_rgb + use_depth, means2d=means2d, conics=conics, depths=depths, radii=radii,
+        offsets=offsets, ids=ids, width=width, height=height, tile_size=tile_size, tiles_x=tiles_x)
+    feat_img, trans = _RasterizeCPU.apply(*ins, means2d_t, st)
     radii_out = torch.from_numpy(radii.max(axis=1))
     return feat_img, trans, means2d_t, radii_out, torch.from_numpy(depths)
