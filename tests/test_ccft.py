@@ -46,11 +46,15 @@ def dense_plan(result, n: int, m: int) -> np.ndarray:
     return D
 
 
+BACKENDS = ["numba", "torch"]
+
+
+@pytest.mark.parametrize("backend", BACKENDS)
 @pytest.mark.parametrize("epsilon,tau,iters", [(0.05, 0.5, 50), (0.01, 0.1, 50), (0.05, 1.0, 100), (0.1, 0.01, 30)])
-def test_plan_equals_pot(epsilon, tau, iters):
+def test_plan_equals_pot(epsilon, tau, iters, backend):
     n, m, c = 300, 200, 64
     X, Y = relu_features(n, c, 1), relu_features(m, c, 2)
-    r = ccft_loss(X, Y, k=16, epsilon=epsilon, tau=tau, iters=iters)
+    r = ccft_loss(X, Y, k=16, epsilon=epsilon, tau=tau, iters=iters, sinkhorn_backend=backend)
     assert bool(r.reachable.all()), "this problem is meant to reach every column"
     P = pot_plan(r, n, epsilon, tau, iters)
     D = dense_plan(r, n, m)
@@ -66,12 +70,14 @@ def dense_cost(r, n, m):
     return Cd
 
 
-def test_plan_equals_pot_with_unreachable_columns_and_guide():
+@pytest.mark.parametrize("backend", BACKENDS)
+def test_plan_equals_pot_with_unreachable_columns_and_guide(backend):
     n, m, c = 120, 400, 32
     X, Y = relu_features(n, c, 3), relu_features(m, c, 4)
-    first = ccft_loss(X, Y, k=8, epsilon=0.05, tau=0.5, iters=50)
+    first = ccft_loss(X, Y, k=8, epsilon=0.05, tau=0.5, iters=50, sinkhorn_backend=backend)
     X2 = X + 0.3 * relu_features(n, c, 5)  # the "next view"
-    r = ccft_loss(X2, Y, first.guide, k=8, epsilon=0.05, tau=0.5, lambda_guide=1.0, iters=50)
+    r = ccft_loss(X2, Y, first.guide, k=8, epsilon=0.05, tau=0.5, lambda_guide=1.0, iters=50,
+                  sinkhorn_backend=backend)
     reach = r.reachable.numpy()
     assert 0 < reach.sum() < m  # some style features are unreachable
     cols = np.flatnonzero(reach)
@@ -82,13 +88,14 @@ def test_plan_equals_pot_with_unreachable_columns_and_guide():
     assert np.allclose(r.column_mass.numpy(), D.sum(axis=0), rtol=0, atol=1e-15)
 
 
+@pytest.mark.parametrize("backend", BACKENDS)
 @pytest.mark.parametrize("tau", [0.01, 0.5, 10.0, math.inf])
-def test_no_nan_at_small_epsilon_with_unreachable_columns(tau):
+def test_no_nan_at_small_epsilon_with_unreachable_columns(tau, backend):
     n, m, c = 64, 1000, 48
     X = relu_features(n, c, 6, torch.float32).requires_grad_(True)
     Y = relu_features(m, c, 7, torch.float32)
     Y[:10] = 0  # all-zero style features (flat regions of a painting) must not break the normalisation
-    r = ccft_loss(X, Y, k=4, epsilon=0.01, tau=tau, iters=200)
+    r = ccft_loss(X, Y, k=4, epsilon=0.01, tau=tau, iters=200, sinkhorn_backend=backend)
     assert int(r.reachable.sum()) < m
     r.loss.backward()
     for name, t in [("loss", r.loss), ("plan", r.plan.values), ("guide", r.guide), ("column_mass", r.column_mass),
@@ -99,16 +106,37 @@ def test_no_nan_at_small_epsilon_with_unreachable_columns(tau):
     assert math.isfinite(r.column_entropy) and 0 <= r.utilisation <= 1
 
 
-def test_far_costs_at_small_epsilon_stay_finite():
-    """Costs near 2 (opposite features) make exp(-C/eps) = exp(-200): the log domain must carry it."""
+@pytest.mark.parametrize("backend", BACKENDS)
+def test_far_costs_at_small_epsilon_stay_finite(backend):
+    """Costs near 2 (opposite features) make exp(-C/eps) = exp(-200): float64 scalings or the log domain carry it."""
     n, m, c = 50, 60, 16
     X = relu_features(n, c, 8)
     Y = -relu_features(m, c, 9)  # every cosine <= 0: costs in [1, 2]
     Y[:, 0] = 1e-3
-    r = ccft_loss(X, Y, k=16, epsilon=0.01, tau=0.1, iters=100)
+    r = ccft_loss(X, Y, k=16, epsilon=0.01, tau=0.1, iters=100, sinkhorn_backend=backend)
     assert torch.isfinite(r.plan.values).all() and torch.isfinite(r.loss)
     assert float(r.cost.min()) > 0.9
     np.testing.assert_allclose(r.plan.values.sum(dim=1).numpy(), 1.0 / n, rtol=0.05)
+
+
+def test_compiled_kernel_falls_back_to_log_domain_beyond_float64():
+    """At epsilon = 0.001 a cost gap of 1.9 is exp(-1900) = 0 in float64: a column reached only by such edges would
+    get v = inf from the scalings; the log domain still gives its (tiny but exact) plan."""
+    n, m, k = 40, 50, 2
+    g = torch.Generator().manual_seed(23)
+    indices = torch.stack([torch.arange(n) % 30, 30 + torch.arange(n) % 20], dim=1)  # columns 30.. only as 2nd edge
+    cost = torch.stack([0.05 * torch.rand(n, generator=g, dtype=torch.float64),
+                        1.95 + 0.05 * torch.rand(n, generator=g, dtype=torch.float64)], dim=1)
+    reachable = torch.ones(m, dtype=torch.bool)
+    from training.sinkhorn_cpu import sinkhorn_plan_cpu
+    from training.ccft import semi_balanced_sinkhorn
+
+    assert sinkhorn_plan_cpu(cost.numpy(), indices.numpy(), torch.full((m,), 1 / m, dtype=torch.float64).numpy(),
+                             reachable.numpy(), 0.5 / 0.501, 0.001, 20) is None
+    auto = semi_balanced_sinkhorn(cost, indices, reachable, 0.5, 0.001, 20, backend="auto")
+    log = semi_balanced_sinkhorn(cost, indices, reachable, 0.5, 0.001, 20, backend="torch")
+    assert torch.isfinite(auto).all() and torch.equal(auto, log)
+    assert float(auto[:, 1].max()) > 0  # the far columns do receive mass
 
 
 def test_gradient_matches_finite_differences_with_plan_fixed():

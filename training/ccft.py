@@ -4,8 +4,9 @@ Rendered features X (n, C) and style features Y (m, C) are L2-normalised. A top-
 found on the guided similarity S = X (Y + lambda_guide G)^T, computed a chunk of rows at a time so that no n x m
 matrix is ever held beyond one chunk. On that support, the cost is C = max(1 - <x_i, y_j>, 0) and a semi-balanced
 entropic transport (rows exact, columns softly pulled toward uniform over the reachable style features by a KL term
-of strength tau) is solved with Sinkhorn in the log domain, in float64: epsilon down to 0.01 and columns no rendered
-feature reaches give neither NaN nor inf. The loss <T, C> has its gradient through C only (the plan is held fixed),
+of strength tau) is solved with Sinkhorn in float64 (on the CPU a compiled kernel on a row-stabilised Gibbs kernel,
+``training.sinkhorn_cpu``, with the log domain as fallback; elsewhere the log domain): epsilon down to 0.01 and
+columns no rendered feature reaches give neither NaN nor inf. The loss <T, C> has its gradient through C only (the plan is held fixed),
 and the guide map for the next view is the plan-weighted mean of the rendered features landing on each style feature.
 
 Memory is O(nK + mC) plus one similarity chunk.
@@ -124,17 +125,11 @@ def _scatter_logsumexp(values: torch.Tensor, index: torch.Tensor, size: int) -> 
     return torch.log(sums) + shift
 
 
-def semi_balanced_sinkhorn(log_kernel: torch.Tensor, indices: torch.Tensor, log_b: torch.Tensor,
-                           reachable: torch.Tensor, tau: float, epsilon: float, iters: int):
-    """Log-domain Sinkhorn of Algorithm 1 on a sparse top-K support.
-
-    log_kernel (n, K) = -stopgrad(cost) / epsilon; indices (n, K); log_b (m,); reachable (m,) bool.
-    Starting from u = v = 1, each iteration sets u = a / (K v), then v = (b / K^T u)^(tau / (tau + epsilon)).
-    Returns log u (n,) and log v (m,) (log v is 0 on unreachable columns, which carry no edge).
-    """
+def _sinkhorn_log_torch(log_kernel: torch.Tensor, indices: torch.Tensor, log_b: torch.Tensor,
+                        reachable: torch.Tensor, alpha: float, iters: int) -> torch.Tensor:
+    """Algorithm 1's Sinkhorn in the log domain with tensor operations (any device); returns the plan (n, K)."""
     n = log_kernel.shape[0]
     m = log_b.shape[0]
-    alpha = 1.0 if math.isinf(tau) else tau / (tau + epsilon)
     log_a = -math.log(n)
     flat = indices.reshape(-1)
     log_u = torch.zeros(n, dtype=log_kernel.dtype, device=log_kernel.device)
@@ -143,7 +138,36 @@ def semi_balanced_sinkhorn(log_kernel: torch.Tensor, indices: torch.Tensor, log_
         log_u = log_a - torch.logsumexp(log_kernel + log_v.index_select(0, flat).view_as(log_kernel), dim=1)
         log_col = _scatter_logsumexp((log_u.unsqueeze(1) + log_kernel).reshape(-1), flat, m)
         log_v = torch.where(reachable, alpha * (log_b - log_col), torch.zeros_like(log_col))
-    return log_u, log_v
+    return torch.exp(log_u.unsqueeze(1) + log_kernel + log_v.index_select(0, flat).view_as(log_kernel))
+
+
+def semi_balanced_sinkhorn(cost: torch.Tensor, indices: torch.Tensor, reachable: torch.Tensor, tau: float,
+                           epsilon: float, iters: int, backend: str = "auto") -> torch.Tensor:
+    """Transport plan (n, K) float64 of Algorithm 1 on a top-K support.
+
+    cost (n, K) float64 >= 0 (no gradient); indices (n, K); reachable (m,) bool. With the Gibbs kernel
+    K = exp(-cost / epsilon), a = 1/n, b = 1/|J| on the reachable columns (1e-12 elsewhere) and u = v = 1, each
+    iteration sets u = a / (K v), then v = (b / K^T u)^(tau / (tau + epsilon)); the plan is u K v.
+    backend: "numba" (compiled CPU kernel, float64 scalings; falls back to the log domain if float64 cannot carry
+    them), "torch" (log domain, tensor ops, any device), "auto" (numba on the CPU, torch elsewhere).
+    """
+    alpha = 1.0 if math.isinf(tau) else tau / (tau + epsilon)
+    n_reach = int(reachable.sum())
+    m = reachable.shape[0]
+    b = torch.full((m,), UNREACHABLE_B, dtype=torch.float64, device=cost.device)
+    b[reachable] = 1.0 / n_reach
+    if backend == "auto":
+        backend = "numba" if cost.device.type == "cpu" else "torch"
+    if backend == "numba":
+        from training.sinkhorn_cpu import sinkhorn_plan_cpu
+
+        plan = sinkhorn_plan_cpu(cost.numpy(), indices.numpy(), b.numpy(), reachable.numpy(), alpha, epsilon,
+                                 iters)
+        if plan is not None:
+            return torch.from_numpy(plan)
+    elif backend != "torch":
+        raise ValueError(f"unknown Sinkhorn backend '{backend}' (auto, numba, torch)")
+    return _sinkhorn_log_torch(-cost / epsilon, indices, torch.log(b), reachable, alpha, iters)
 
 
 def column_statistics(column_mass: torch.Tensor, reachable: torch.Tensor) -> tuple[float, float, float]:
@@ -164,11 +188,12 @@ def column_statistics(column_mass: torch.Tensor, reachable: torch.Tensor) -> tup
 
 def ccft_loss(X: torch.Tensor, Y: torch.Tensor, guide: torch.Tensor | None = None, k: int = 16,
               epsilon: float = 0.05, tau: float = 0.5, lambda_guide: float = 1.0, iters: int = 50,
-              chunk_elements: int = DEFAULT_CHUNK_ELEMENTS) -> CCFTResult:
+              chunk_elements: int = DEFAULT_CHUNK_ELEMENTS, sinkhorn_backend: str = "auto") -> CCFTResult:
     """CCFT loss of rendered features X (n, C) against style features Y (m, C) (Algorithm 1).
 
     guide (m, C) is the previous view's ``CCFTResult.guide`` (None: no guidance yet, i.e. G = 0). Y is treated as a
-    constant. The Sinkhorn runs in float64 whatever X's dtype; the loss has X's dtype."""
+    constant. The Sinkhorn runs in float64 whatever X's dtype; the loss has X's dtype. sinkhorn_backend: see
+    ``semi_balanced_sinkhorn``."""
     if X.dim() != 2 or Y.dim() != 2 or X.shape[1] != Y.shape[1]:
         raise ValueError(f"expected X (n, C) and Y (m, C) with the same C, got {tuple(X.shape)} and {tuple(Y.shape)}")
     if X.shape[0] == 0 or Y.shape[0] == 0:
@@ -194,14 +219,9 @@ def ccft_loss(X: torch.Tensor, Y: torch.Tensor, guide: torch.Tensor | None = Non
 
     t0 = time.perf_counter()
     cost = torch.clamp(1.0 - gathered_row_dot(Xn, Yn, indices, chunk_elements), min=0.0)  # (n, K), grad to X
-    log_kernel = -cost.detach().to(torch.float64) / epsilon
-    degree = torch.bincount(indices.reshape(-1), minlength=m)
-    reachable = degree > 0
-    n_reach = int(reachable.sum())
-    log_b = torch.where(reachable, torch.full((m,), -math.log(n_reach), dtype=torch.float64, device=X.device),
-                        torch.full((m,), math.log(UNREACHABLE_B), dtype=torch.float64, device=X.device))
-    log_u, log_v = semi_balanced_sinkhorn(log_kernel, indices, log_b, reachable, tau, epsilon, iters)
-    plan = torch.exp(log_u.unsqueeze(1) + log_kernel + log_v.index_select(0, indices.reshape(-1)).view_as(log_kernel))
+    reachable = torch.bincount(indices.reshape(-1), minlength=m) > 0
+    plan = semi_balanced_sinkhorn(cost.detach().to(torch.float64), indices, reachable, tau, epsilon, iters,
+                                  sinkhorn_backend)  # (n, K) float64
     loss = (plan.to(cost.dtype) * cost).sum()
     timings["sinkhorn"] = time.perf_counter() - t0
 
