@@ -20,7 +20,9 @@ def bruteforce_render(
     sh_degree=None, background=None, near_plane=0.01, far_plane=1e10, eps2d=0.3,
 ):
     """All inputs as arrays/tensors (any float dtype). Returns float64 arrays rgb (H,W,3), depth (H,W,1) = sum
-    d_i a_i T_i, alpha (H,W,1)."""
+    d_i a_i T_i, alpha (H,W,1), and a bool mask (H,W) of pixels "at the alpha threshold": where some Gaussian's
+    alpha lies within 1e-4 (relative) of the 1/255 cut or its transmittance within 1e-4 of the 1e-4 stop, so
+    that float32 rounding may legitimately flip whether it composites."""
     f64 = lambda t: np.asarray(t.detach().cpu().numpy() if isinstance(t, torch.Tensor) else t, dtype=np.float64)
     means, quats, scales, opacities, viewmat, K = map(f64, (means, quats, scales, opacities, viewmat, K))
     n = means.shape[0]
@@ -67,6 +69,7 @@ def bruteforce_render(
     done = np.zeros(px.shape, bool)
     out_rgb = np.zeros((px.size, 3))
     out_d = np.zeros(px.size)
+    near = np.zeros(px.size, bool)
     for i in np.argsort(z, kind="stable"):
         if not keep[i]:
             continue
@@ -75,6 +78,8 @@ def bruteforce_render(
         alpha = np.minimum(0.99, opacities[i] * np.exp(power))
         use = (~done) & (power <= 0) & (alpha >= 1.0 / 255.0)
         next_T = T * (1.0 - alpha)
+        near |= (~done) & (power <= 0) & (np.abs(alpha * 255.0 - 1.0) < 1e-4)
+        near |= (~done) & (power <= 0) & (alpha >= 1.0 / 255.0) & (np.abs(next_T * 1e4 - 1.0) < 1e-4)
         stop = use & (next_T <= 1e-4)
         done |= stop
         use &= ~stop
@@ -84,4 +89,5 @@ def bruteforce_render(
         T = np.where(use, next_T, T)
     if background is not None:
         out_rgb += T[:, None] * f64(background)
-    return (out_rgb.reshape(height, width, 3), out_d.reshape(height, width, 1), (1.0 - T).reshape(height, width, 1))
+    return (out_rgb.reshape(height, width, 3), out_d.reshape(height, width, 1), (1.0 - T).reshape(height, width, 1),
+            near.reshape(height, width))

@@ -19,7 +19,7 @@ def test_torch_matches_bruteforce(mode):
     scene = random_scene(300, w, h, seed, edge_cases=True, principal=(0.4, 0.6), log_scale_mean=-2.5)
     bg = torch.tensor([0.2, 0.5, 0.9])
     img, alpha, info = rasterize(*scene, w, h, background=bg, render_mode=mode, backend="torch")
-    rgb_ref, d_ref, a_ref = bruteforce_render(*scene, w, h, background=bg)
+    rgb_ref, d_ref, a_ref, _ = bruteforce_render(*scene, w, h, background=bg)
     assert info["backend"] == "torch"
     np.testing.assert_allclose(alpha.numpy(), a_ref, atol=1e-5)
     if mode.startswith("RGB"):
@@ -34,7 +34,7 @@ def test_torch_float64_matches_bruteforce_sh():
     w, h = 40, 33
     scene = random_scene(200, w, h, seed, dtype=torch.float64, sh_degree=3, edge_cases=True)
     img, alpha, _ = rasterize(*scene, w, h, sh_degree=3, render_mode="RGB+D", backend="torch")
-    rgb_ref, d_ref, a_ref = bruteforce_render(*scene, w, h, sh_degree=3)
+    rgb_ref, d_ref, a_ref, _ = bruteforce_render(*scene, w, h, sh_degree=3)
     np.testing.assert_allclose(img[..., :3].numpy(), rgb_ref, atol=1e-9)
     np.testing.assert_allclose(img[..., 3:].numpy(), d_ref, atol=1e-8)
     np.testing.assert_allclose(alpha.numpy(), a_ref, atol=1e-9)

@@ -157,6 +157,13 @@ def rasterize(
             depth = depth / alpha.clamp_min(1e-10)
         channels.append(depth)
     image = channels[0] if len(channels) == 1 else torch.cat(channels, dim=-1)
+    if torch.is_grad_enabled() and not image.requires_grad:
+        inputs = [t for t in (means, quats, scales, opacities, colors, background) if t is not None]
+        if any(t.requires_grad for t in inputs):
+            # Nothing visible: the image is constant, but a training loop still calls backward on it, so keep it
+            # connected to the inputs (every gradient is zero).
+            zero = sum((t * 0).sum() for t in inputs if t.requires_grad)
+            image, alpha = image + zero, alpha + zero
     info = {"means2d": means2d, "radii": radii, "depths": depths, "backend": chosen,
             "width": width, "height": height, "tile_size": tile_size}
     return image, alpha, info

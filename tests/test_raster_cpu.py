@@ -1,0 +1,155 @@
+"""The numba cpu rasterizer: forward against the float64 brute force, gradients against autograd through the
+PyTorch reference, edge cases, and the backend choice."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+import torch
+
+from tests.raster_bruteforce import bruteforce_render
+from tests.raster_scenes import fresh_seed, random_scene
+from training.rasterize import choose_backend, rasterize
+
+INPUTS = ["means", "quats", "scales", "opacities", "colors"]
+
+
+def _check_close(got, ref, near, atol, label):
+    """max |got - ref| <= atol except at alpha-threshold pixels, which get 1e-3."""
+    err = np.abs(np.asarray(got, np.float64) - ref).max(axis=-1)
+    assert err[~near].max(initial=0) <= atol, f"{label}: max error {err[~near].max():.3g} off-threshold"
+    assert err.max(initial=0) <= 1e-3, f"{label}: max error {err.max():.3g} at threshold pixels"
+
+
+@pytest.mark.parametrize(
+    "size,fx_scale,fy_ratio,principal,sh_degree,mode",
+    [
+        ((61, 45), 0.9, 1.1, (0.4, 0.6), None, "RGB+D"),  # odd size, fx != fy, off-centre principal point
+        ((64, 48), 1.2, 1.0, (0.5, 0.5), 3, "RGB+ED"),
+        ((33, 70), 0.7, 0.8, (0.7, 0.3), 1, "RGB"),
+        ((47, 29), 1.0, 1.0, (0.5, 0.5), None, "D"),
+        ((40, 40), 1.0, 1.0, (0.2, 0.9), 2, "ED"),
+        ((1, 1), 1.0, 1.0, (0.5, 0.5), None, "RGB+D"),  # a single pixel
+    ],
+)
+def test_cpu_forward_matches_bruteforce(size, fx_scale, fy_ratio, principal, sh_degree, mode):
+    seed = fresh_seed("cpu-vs-brute")
+    w, h = size
+    n = 400 if w * h > 1 else 50
+    scene = random_scene(n, w, h, seed, edge_cases=True, sh_degree=sh_degree, fx_scale=fx_scale,
+                         fy_ratio=fy_ratio, principal=principal, log_scale_mean=-2.5)
+    bg = torch.tensor([0.25, 0.5, 0.75])
+    img, alpha, info = rasterize(*scene, w, h, sh_degree=sh_degree, background=bg, render_mode=mode, backend="cpu")
+    rgb_ref, d_ref, a_ref, near = bruteforce_render(*scene, w, h, sh_degree=sh_degree, background=bg)
+    assert info["backend"] == "cpu"
+    assert img.dtype == torch.float32 and alpha.shape == (h, w, 1)
+    assert img.shape == (h, w, {"RGB": 3, "D": 1, "ED": 1, "RGB+D": 4, "RGB+ED": 4}[mode])
+    _check_close(alpha.numpy(), a_ref, near, 1e-5, "alpha")
+    if mode.startswith("RGB"):
+        _check_close(img[..., :3].numpy(), rgb_ref, near, 1e-5, "rgb")
+    if "D" in mode:
+        ref = d_ref / np.maximum(a_ref, 1e-10) if mode.endswith("ED") else d_ref
+        depth_scale = max(1.0, float(scene[0][:, 2].abs().max()) + 1.0)  # depths are ~5, not ~1: relative
+        _check_close(img[..., -1:].numpy() / depth_scale, ref / depth_scale, near, 1e-5, "depth")
+    # culled Gaussians: behind the camera or in front of the near plane get radius 0
+    z = info["depths"]
+    assert (info["radii"][z < 0.01] == 0).all()
+    assert (info["radii"] > 0).any()
+
+
+def _grads(backend, scene, w, h, sh_degree, weights, bg):
+    ins = [t.clone().requires_grad_(True) for t in scene[:5]]
+    img, alpha, info = rasterize(*ins, *scene[5:], w, h, sh_degree=sh_degree, background=bg,
+                                 render_mode="RGB+D", backend=backend)
+    loss = (img * weights).sum() + (alpha[..., 0] * weights[..., 0]).sum()
+    loss.backward()
+    out = {name: t.grad for name, t in zip(INPUTS, ins)}
+    out["means2d"] = info["means2d"].grad
+    return out, info
+
+
+@pytest.mark.parametrize("sh_degree", [3, None])
+def test_cpu_gradients_match_torch_reference(sh_degree):
+    seed = fresh_seed("cpu-grad")
+    w, h = 96, 72
+    scene = random_scene(5000, w, h, seed, sh_degree=sh_degree, edge_cases=True, log_scale_mean=-3.3)
+    weights = torch.rand(h, w, 4, generator=torch.Generator().manual_seed(seed))
+    bg = torch.tensor([0.1, 0.2, 0.3])
+    got, info_cpu = _grads("cpu", scene, w, h, sh_degree, weights, bg)
+    ref, info_ref = _grads("torch", scene, w, h, sh_degree, weights, bg)
+    for name in INPUTS + ["means2d"]:
+        g, r = got[name], ref[name]
+        assert g is not None and g.shape == r.shape, name
+        assert torch.isfinite(g).all(), name
+        rel = float((g - r).norm() / r.norm())
+        print(f"{name}: relative error {rel:.3g}")
+        assert r.norm() > 0, name
+        assert rel <= 1e-4, f"{name}: relative error {rel:.3g}"
+    assert torch.equal(info_cpu["radii"] > 0, info_ref["radii"] > 0)
+    assert (info_cpu["radii"] - info_ref["radii"]).abs().max() <= 1
+
+
+def test_cpu_float64_inputs_give_float64_gradients():
+    seed = fresh_seed("cpu-f64")
+    scene = random_scene(200, 32, 24, seed, dtype=torch.float64)
+    ins = [t.clone().requires_grad_(True) for t in scene[:5]]
+    img, alpha, _ = rasterize(*ins, *scene[5:], 32, 24, backend="cpu")
+    img.sum().backward()
+    assert all(t.grad.dtype == torch.float64 and torch.isfinite(t.grad).all() for t in ins)
+
+
+def test_empty_scene_renders_background():
+    bg = torch.tensor([0.3, 0.6, 0.9])
+    z = torch.zeros(0, 3, requires_grad=True)
+    q = torch.zeros(0, 4, requires_grad=True)
+    o = torch.zeros(0, requires_grad=True)
+    for backend in ("cpu", "torch"):
+        img, alpha, info = rasterize(z, q, z, o, z, torch.eye(4), torch.eye(3) * 10, 17, 9, background=bg,
+                                     render_mode="RGB+ED", backend=backend)
+        assert img.shape == (9, 17, 4)
+        assert torch.allclose(img[..., :3], bg.expand(9, 17, 3))
+        assert (alpha == 0).all() and (img[..., 3] == 0).all()
+        img.sum().backward()
+        assert info["means2d"].shape == (0, 2)
+
+
+def test_all_gaussians_culled_have_zero_gradients():
+    seed = fresh_seed("cpu-culled")
+    means, quats, scales, opac, colors, V, K = random_scene(100, 20, 20, seed)
+    means = means.clone()
+    means[:, 2] = -5.0  # behind a camera that looks along +z (V is close to identity)
+    ins = [t.clone().requires_grad_(True) for t in (means, quats, scales, opac, colors)]
+    img, alpha, info = rasterize(*ins, V, K, 20, 20, backend="cpu")
+    (img.sum() + alpha.sum()).backward()
+    assert (alpha == 0).all() and (info["radii"] == 0).all()
+    assert all((t.grad == 0).all() for t in ins)
+
+
+def test_zero_and_huge_scales_stay_finite():
+    seed = fresh_seed("cpu-scales")
+    means, quats, scales, opac, colors, V, K = random_scene(50, 30, 20, seed)
+    scales = scales.clone()
+    scales[:10] = 0.0
+    scales[10:12] = 1e4
+    scales[12:14] = 1e-12
+    ins = [t.clone().requires_grad_(True) for t in (means, quats, scales, opac, colors)]
+    img, alpha, info = rasterize(*ins, V, K, 30, 20, render_mode="RGB+ED", backend="cpu")
+    rgb_ref, d_ref, a_ref, near = bruteforce_render(means, quats, scales, opac, colors, V, K, 30, 20)
+    _check_close(alpha.detach().numpy(), a_ref, near, 1e-5, "alpha")
+    (img.sum() + alpha.sum()).backward()
+    assert torch.isfinite(img).all() and all(torch.isfinite(t.grad).all() for t in ins)
+
+
+def test_backend_choice(monkeypatch):
+    cpu = torch.device("cpu")
+    monkeypatch.delenv("SPLATSTYLER_RASTER_BACKEND", raising=False)
+    assert choose_backend("auto", cpu) == "cpu"
+    assert choose_backend("torch", cpu) == "torch"
+    monkeypatch.setenv("SPLATSTYLER_RASTER_BACKEND", "torch")
+    assert choose_backend("auto", cpu) == "torch"
+    assert choose_backend("cpu", cpu) == "cpu"  # an explicit argument wins over the environment
+    with pytest.raises(ValueError):
+        choose_backend("opengl", cpu)
+    with pytest.raises(ValueError):
+        rasterize(torch.zeros(2, 3), torch.zeros(2, 4), torch.zeros(2, 3), torch.zeros(2), torch.zeros(3, 3),
+                  torch.eye(4), torch.eye(3), 8, 8)
