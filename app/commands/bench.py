@@ -14,6 +14,7 @@ import json
 # name -> (module, one-line help)
 BENCHES: dict[str, tuple[str, str]] = {
     "reconstruct": ("training.bench_reconstruct", "iterations/s of the quick reconstruction preset, per phase"),
+    "raster": ("training.bench_raster", "rasterizer forward/backward time and peak memory per backend vs the torch reference"),
 }
 
 
