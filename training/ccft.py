@@ -16,6 +16,7 @@ from __future__ import annotations
 
 import math
 import time
+import warnings
 from dataclasses import dataclass, field
 
 import torch
@@ -46,7 +47,7 @@ class CCFTResult:
     utilisation: float  # fraction of reachable style features with column mass >= half of uniform (1 / |J|)
     column_entropy: float  # entropy (nats) of the column marginal normalised to sum 1
     column_entropy_normalised: float  # column_entropy / log|J|, in [0, 1]
-    timings: dict[str, float] = field(default_factory=dict)  # seconds: similarity_topk, sinkhorn, guide
+    timings: dict[str, float] = field(default_factory=dict)  # seconds: similarity_topk, cost, sinkhorn, guide
 
 
 def l2_normalise(x: torch.Tensor) -> torch.Tensor:
@@ -73,46 +74,45 @@ def topk_support(Xn: torch.Tensor, Z: torch.Tensor, k: int, chunk_elements: int 
     return out
 
 
+def support_matrix(indices: torch.Tensor, values: torch.Tensor, m: int) -> torch.Tensor:
+    """The (n, m) sparse CSR matrix with values (n, K) at [i, indices[i, k]] (K entries a row, order kept)."""
+    n, k = indices.shape
+    crow = torch.arange(0, n * k + 1, k, dtype=torch.int64, device=indices.device)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")  # torch calls its sparse CSR support beta
+        return torch.sparse_csr_tensor(crow, indices.reshape(-1), values.reshape(-1), size=(n, m))
+
+
 class _GatheredRowDot(torch.autograd.Function):
-    """V[i, k] = <X[i], Y[idx[i, k]]> without materialising Y[idx] (n, K, C) for autograd: chunked both ways."""
+    """V[i, k] = <X[i], Y[idx[i, k]]> as sparse products, never materialising Y[idx] (n, K, C).
+
+    Forward: a sampled matrix product on the support; backward: dX = A Y and dY = A^T X with A the (n, m) sparse
+    matrix of the incoming gradient on the support."""
 
     @staticmethod
-    def forward(ctx, X: torch.Tensor, Y: torch.Tensor, idx: torch.Tensor, chunk_elements: int) -> torch.Tensor:
-        n, C = X.shape
-        k = idx.shape[1]
-        rows = _chunk_rows(chunk_elements, k * C)
-        out = torch.empty((n, k), dtype=X.dtype, device=X.device)
-        for s in range(0, n, rows):
-            e = min(n, s + rows)
-            out[s:e] = torch.bmm(Y[idx[s:e]], X[s:e].unsqueeze(2)).squeeze(2)
+    def forward(ctx, X: torch.Tensor, Y: torch.Tensor, idx: torch.Tensor) -> torch.Tensor:
+        n, k = idx.shape
+        pattern = support_matrix(idx, torch.zeros(n * k, dtype=X.dtype, device=X.device), Y.shape[0])
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")
+            out = torch.sparse.sampled_addmm(pattern, X, Y.t(), beta=0.0).values().view(n, k)
         ctx.save_for_backward(X, Y, idx)
-        ctx.rows = rows
         return out
 
     @staticmethod
     def backward(ctx, grad: torch.Tensor):
         X, Y, idx = ctx.saved_tensors
-        rows = ctx.rows
-        n, C = X.shape
-        gX = gY = None
-        if ctx.needs_input_grad[0]:
-            gX = torch.empty_like(X)
-            for s in range(0, n, rows):
-                e = min(n, s + rows)
-                gX[s:e] = torch.bmm(grad[s:e].unsqueeze(1), Y[idx[s:e]]).squeeze(1)
-        if ctx.needs_input_grad[1]:
-            gY = torch.zeros_like(Y)
-            for s in range(0, n, rows):
-                e = min(n, s + rows)
-                contrib = grad[s:e].unsqueeze(2) * X[s:e].unsqueeze(1)  # (rows, K, C)
-                gY.index_add_(0, idx[s:e].reshape(-1), contrib.reshape(-1, C))
-        return gX, gY, None, None
+        A = support_matrix(idx, grad.contiguous(), Y.shape[0])
+        gX = A @ Y if ctx.needs_input_grad[0] else None
+        gY = A.t() @ X if ctx.needs_input_grad[1] else None
+        return gX, gY, None
 
 
-def gathered_row_dot(X: torch.Tensor, Y: torch.Tensor, idx: torch.Tensor,
-                     chunk_elements: int = DEFAULT_CHUNK_ELEMENTS) -> torch.Tensor:
-    """X (n, C), Y (m, C), idx (n, K) -> (n, K) with [i, k] = <X[i], Y[idx[i, k]]>; differentiable in X and Y."""
-    return _GatheredRowDot.apply(X, Y, idx, chunk_elements)
+def gathered_row_dot(X: torch.Tensor, Y: torch.Tensor, idx: torch.Tensor) -> torch.Tensor:
+    """X (n, C), Y (m, C), idx (n, K) -> (n, K) with [i, k] = <X[i], Y[idx[i, k]]>; differentiable in X and Y.
+
+    Memory O(nK + (n + m) C)."""
+    return _GatheredRowDot.apply(X.contiguous(), Y.contiguous(), idx.contiguous())
 
 
 def _scatter_logsumexp(values: torch.Tensor, index: torch.Tensor, size: int) -> torch.Tensor:
@@ -218,8 +218,11 @@ def ccft_loss(X: torch.Tensor, Y: torch.Tensor, guide: torch.Tensor | None = Non
     timings["similarity_topk"] = time.perf_counter() - t0
 
     t0 = time.perf_counter()
-    cost = torch.clamp(1.0 - gathered_row_dot(Xn, Yn, indices, chunk_elements), min=0.0)  # (n, K), grad to X
+    cost = torch.clamp(1.0 - gathered_row_dot(Xn, Yn, indices), min=0.0)  # (n, K), grad to X
     reachable = torch.bincount(indices.reshape(-1), minlength=m) > 0
+    timings["cost"] = time.perf_counter() - t0
+
+    t0 = time.perf_counter()
     plan = semi_balanced_sinkhorn(cost.detach().to(torch.float64), indices, reachable, tau, epsilon, iters,
                                   sinkhorn_backend)  # (n, K) float64
     loss = (plan.to(cost.dtype) * cost).sum()
@@ -228,10 +231,8 @@ def ccft_loss(X: torch.Tensor, Y: torch.Tensor, guide: torch.Tensor | None = Non
     t0 = time.perf_counter()
     column_mass = torch.zeros(m, dtype=torch.float64, device=X.device).index_add_(0, indices.reshape(-1),
                                                                                    plan.reshape(-1))
-    rows = torch.arange(n, device=X.device).repeat_interleave(k)
-    transport = torch.sparse_coo_tensor(torch.stack([indices.reshape(-1), rows]), plan.reshape(-1).to(Xn.dtype),
-                                        size=(m, n), check_invariants=False)
-    guide_next = l2_normalise(torch.sparse.mm(transport, Xn.detach())).detach()
+    transport = support_matrix(indices, plan.to(Xn.dtype), m)
+    guide_next = l2_normalise(transport.t() @ Xn.detach()).detach()  # (m, C): sum_i T_ij x_i, normalised
     timings["guide"] = time.perf_counter() - t0
 
     util, entropy, entropy_norm = column_statistics(column_mass, reachable)

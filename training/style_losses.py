@@ -23,7 +23,7 @@ class CCFTStyleLoss:
     """Capacity-controlled feature transport with cross-view guidance (``training.ccft``).
 
     stats: loss, utilisation, column_entropy, column_entropy_normalised, reachable_fraction, and the timings
-    (seconds) similarity_topk_s, sinkhorn_s, guide_s."""
+    (seconds) similarity_topk_s, cost_s, sinkhorn_s, guide_s."""
 
     name = "ccft"
 
