@@ -327,13 +327,34 @@ def _bin(order, means2d, radii, tile_size, tiles_x, tiles_y):
 
 
 @njit(inline="always", **_jit)
-def _box(mx, my, rx, ry, x0, x1, y0, y1):
-    """Pixel range of a Gaussian's screen box inside a tile (a superset of where alpha >= 1/255)."""
-    bx0 = max(x0, int(math.floor(mx - rx)) - 1)
-    bx1 = min(x1, int(math.ceil(mx + rx)) + 1)
+def _rows(my, ry, y0, y1):
+    """Pixel rows of a Gaussian's screen box inside a tile (a superset of where alpha >= 1/255)."""
     by0 = max(y0, int(math.floor(my - ry)) - 1)
     by1 = min(y1, int(math.ceil(my + ry)) + 1)
-    return bx0, bx1, by0, by1
+    return by0, by1
+
+
+@njit(inline="always", **_jit)
+def _row_span(mx, my, ca, cb, cc, log_thr, py, x0, x1):
+    """Pixel columns [lo, hi) of row py where the exponent can reach log_thr, widened by a pixel each side.
+
+    Solves A dx^2 + 2 B dy dx + C dy^2 + 2 L <= 0 (power >= L) for dx in float64; pixels outside the span have
+    power below log_thr (which already carries SKIP_MARGIN), so the per-pixel test would skip them anyway.
+    """
+    a = np.float64(ca)
+    b = np.float64(cb)
+    dy = np.float64(my) - (py + 0.5)
+    bd = b * dy
+    disc = bd * bd - a * (np.float64(cc) * dy * dy + 2.0 * log_thr)
+    if disc < 0.0 or a <= 0.0:
+        return 0, 0
+    r = math.sqrt(disc)
+    # dx = mx - (px + 0.5) in [(-bd - r)/a, (-bd + r)/a]
+    lo = np.float64(mx) - 0.5 - (-bd + r) / a
+    hi = np.float64(mx) - 0.5 - (-bd - r) / a
+    if not (hi >= x0 - 2 and lo <= x1 + 2):
+        return 0, 0
+    return max(x0, int(math.floor(lo)) - 1), min(x1, int(math.ceil(hi)) + 2)
 
 
 @njit(inline="always", **_jit)
@@ -354,8 +375,8 @@ def _composite_fwd(offsets, ids, means2d, conics, opac, feats, radii, width, hei
         x1, y1 = min(x0 + tile_size, width), min(y0 + tile_size, height)
         tw = x1 - x0
         n_pix = tw * (y1 - y0)
-        T = np.ones(n_pix)
-        acc = np.zeros((n_pix, n_ch))
+        T = np.ones(n_pix, np.float32)
+        acc = np.zeros((n_pix, n_ch), np.float32)
         last = np.zeros(n_pix, np.int32)
         done = np.zeros(n_pix, np.bool_)
         remaining = n_pix
@@ -366,10 +387,12 @@ def _composite_fwd(offsets, ids, means2d, conics, opac, feats, radii, width, hei
             ca, cb, cc = conics[g, 0], conics[g, 1], conics[g, 2]
             o = opac[g]
             log_thr = math.log(ALPHA_MIN / np.float64(o)) - SKIP_MARGIN
-            bx0, bx1, by0, by1 = _box(mx, my, radii[g, 0], radii[g, 1], x0, x1, y0, y1)
+            by0, by1 = _rows(my, radii[g, 1], y0, y1)
             for py in range(by0, by1):
+                bx0, bx1 = _row_span(mx, my, ca, cb, cc, log_thr, py, x0, x1)
+                row = (py - y0) * tw - x0
                 for px in range(bx0, bx1):
-                    p = (py - y0) * tw + (px - x0)
+                    p = row + px
                     if done[p]:
                         continue
                     power, dx, dy = _power(mx, my, ca, cb, cc, px, py)
@@ -378,12 +401,13 @@ def _composite_fwd(offsets, ids, means2d, conics, opac, feats, radii, width, hei
                     alpha = min(np.float32(ALPHA_MAX), o * np.exp(power))
                     if alpha < np.float32(ALPHA_MIN):
                         continue
-                    next_t = T[p] * (1.0 - alpha)
-                    if next_t <= T_MIN:
+                    tp = T[p]
+                    next_t = tp * (np.float32(1.0) - alpha)
+                    if next_t <= np.float32(T_MIN):
                         done[p] = True
                         remaining -= 1
                         continue
-                    w = alpha * T[p]
+                    w = alpha * tp
                     for c in range(n_ch):
                         acc[p, c] += feats[g, c] * w
                     T[p] = next_t
@@ -435,7 +459,7 @@ def _composite_bwd(offsets, ids, means2d, conics, opac, feats, radii, width, hei
             ca, cb, cc = conics[g, 0], conics[g, 1], conics[g, 2]
             o = opac[g]
             log_thr = math.log(ALPHA_MIN / np.float64(o)) - SKIP_MARGIN
-            bx0, bx1, by0, by1 = _box(mx, my, radii[g, 0], radii[g, 1], x0, x1, y0, y1)
+            by0, by1 = _rows(my, radii[g, 1], y0, y1)
             vmx = 0.0
             vmy = 0.0
             va = 0.0
@@ -447,8 +471,10 @@ def _composite_bwd(offsets, ids, means2d, conics, opac, feats, radii, width, hei
             touched = False
             jl = j - s
             for py in range(by0, by1):
+                bx0, bx1 = _row_span(mx, my, ca, cb, cc, log_thr, py, x0, x1)
+                row = (py - y0) * tw - x0
                 for px in range(bx0, bx1):
-                    p = (py - y0) * tw + (px - x0)
+                    p = row + px
                     if jl >= last[p]:
                         continue
                     power, dx, dy = _power(mx, my, ca, cb, cc, px, py)
