@@ -147,19 +147,20 @@ def tile_pairs(
     counts = nx * ny
     keep = counts > 0
     idx, x0, y0, nx, counts = idx[keep], x0[keep], y0[keep], nx[keep], counts[keep]
-    owner = torch.repeat_interleave(torch.arange(idx.numel()), counts)
+    dev = means2d.device
+    owner = torch.repeat_interleave(torch.arange(idx.numel(), device=dev), counts)
     start = torch.cumsum(counts, 0) - counts
-    local = torch.arange(owner.numel()) - start[owner]
+    local = torch.arange(owner.numel(), device=dev) - start[owner]
     tile = (y0[owner] + local // nx[owner]) * tiles_x + x0[owner] + local % nx[owner]
     # Depth rank (stable, ties by index) makes the (tile, rank) key an exact integer.
     order = torch.sort(depths.detach()[idx], stable=True).indices
     rank = torch.empty_like(order)
-    rank[order] = torch.arange(order.numel())
+    rank[order] = torch.arange(order.numel(), device=dev)
     key = tile * max(idx.numel(), 1) + rank[owner]
     sort = torch.sort(key).indices
     gauss_ids = idx[owner[sort]]
     per_tile = torch.bincount(tile, minlength=tiles_x * tiles_y)
-    offsets = torch.zeros(tiles_x * tiles_y + 1, dtype=torch.long)
+    offsets = torch.zeros(tiles_x * tiles_y + 1, dtype=torch.long, device=dev)
     offsets[1:] = torch.cumsum(per_tile, 0)
     return gauss_ids, offsets
 
@@ -183,17 +184,19 @@ def composite_tiles(
     tiles_y = (height + tile_size - 1) // tile_size
     C = features.shape[1]
     dtype = means2d.dtype
-    ar = torch.arange(tile_size, dtype=dtype) + 0.5
+    dev = means2d.device
+    ar = torch.arange(tile_size, dtype=dtype, device=dev) + 0.5
     py, px = torch.meshgrid(ar, ar, indexing="ij")
     px, py = px.reshape(-1), py.reshape(-1)
     n_pix = tile_size * tile_size
-    empty_f = torch.zeros(n_pix, C, dtype=dtype)
-    empty_t = torch.ones(n_pix, 1, dtype=dtype)
+    empty_f = torch.zeros(n_pix, C, dtype=dtype, device=dev)
+    empty_t = torch.ones(n_pix, 1, dtype=dtype, device=dev)
+    bounds = offsets.tolist()
     outs_f, outs_t = [], []
     for ty in range(tiles_y):
         for tx in range(tiles_x):
             t = ty * tiles_x + tx
-            s, e = int(offsets[t]), int(offsets[t + 1])
+            s, e = bounds[t], bounds[t + 1]
             if s == e:
                 outs_f.append(empty_f)
                 outs_t.append(empty_t)
