@@ -1,0 +1,101 @@
+"""``splatstyler reconstruct`` end to end on tiny demo scenes written to disk as COLMAP folders."""
+
+import json
+
+import numpy as np
+import pytest
+import torch
+
+from app.cli import main
+from training.demo_scene import make_demo_scene, write_demo_scene
+from training.ply_io import read_ply
+
+REPORT_KEYS = {"train_psnr", "test_psnr", "test_ssim", "num_gaussians", "aniso_p95", "smax_p95", "seconds",
+               "settings"}
+
+
+@pytest.fixture(scope="module")
+def demo_folder(tmp_path_factory):
+    d = make_demo_scene(num_views=10, width=64, height=48, num_points=400)
+    return write_demo_scene(tmp_path_factory.mktemp("demo") / "scene", d)
+
+
+@pytest.fixture(scope="module")
+def no_points_folder(tmp_path_factory):
+    from training.colmap_io import write_colmap_model
+    from training.image_io import write_image
+
+    d = make_demo_scene(num_views=9, width=48, height=36, num_points=10)
+    folder = tmp_path_factory.mktemp("nopts") / "scene"
+    for cam, im in zip(d.cameras, d.images):
+        write_image(folder / "images" / cam.name, im)
+    (folder / "sparse" / "0").mkdir(parents=True)
+    write_colmap_model(folder / "sparse" / "0", d.cameras, points=None)
+    return folder
+
+
+def _run(args, capsys):
+    rc = main(["reconstruct", *map(str, args), "--no-progress", "--downscale", "1"])
+    return rc, capsys.readouterr()
+
+
+@pytest.mark.slow
+def test_cli_writes_ply_report_and_resumes(demo_folder, tmp_path, capsys):
+    out = tmp_path / "out"
+    rc, _ = _run([demo_folder, "-o", out, "--iters", "30", "--checkpoint-every", "15"], capsys)
+    assert rc == 0
+    report = json.loads((out / "report.json").read_text())
+    assert REPORT_KEYS <= set(report)
+    assert report["iterations"] == 30 and report["settings"]["depth_used"] == "sfm"
+    assert report["settings"]["init"] == "sfm" and report["settings"]["config"]["preset"] == "quick"
+    g = read_ply(out / "point_cloud.ply")
+    assert len(g) == report["num_gaussians"]
+    assert all(torch.isfinite(t).all() for t in g.parameters().values())
+    assert 1.0 <= report["aniso_p95"] and 0.0 < report["smax_p95"]
+    assert np.isfinite(report["test_psnr"]) and np.isfinite(report["constant_color_psnr"])
+
+    rc, cap = _run([demo_folder, "-o", out, "--resume", "--iters", "36"], capsys)
+    assert rc == 0 and "at iteration 30" in cap.err
+    report2 = json.loads((out / "report.json").read_text())
+    assert report2["iterations"] == 36
+    assert report2["seconds"] >= report["seconds"]
+
+
+@pytest.mark.slow
+def test_ctrl_c_saves_a_checkpoint_and_exits_130(demo_folder, tmp_path, capsys, monkeypatch):
+    from training.checkpoint import load_checkpoint
+    from training.reconstruct import Reconstructor
+
+    real_step = Reconstructor.step
+
+    def step(self):
+        if self.step_count == 7:
+            raise KeyboardInterrupt
+        return real_step(self)
+
+    monkeypatch.setattr(Reconstructor, "step", step)
+    out = tmp_path / "out"
+    rc, cap = _run([demo_folder, "-o", out, "--iters", "30", "--checkpoint-every", "0"], capsys)
+    assert rc == 130 and "--resume" in cap.err
+    assert load_checkpoint(out / "checkpoint.pt")["step"] == 7
+    assert not (out / "point_cloud.ply").exists()
+
+
+@pytest.mark.slow
+def test_scene_without_points_and_sfm_depth_falls_back(no_points_folder, tmp_path, capsys):
+    out = tmp_path / "out"
+    with pytest.warns(UserWarning, match="no SfM points"):
+        rc, _ = _run([no_points_folder, "-o", out, "--iters", "10", "--depth", "sfm"], capsys)
+    assert rc == 0
+    report = json.loads((out / "report.json").read_text())
+    assert report["settings"]["depth_used"] == "none" and report["settings"]["init"] == "random"
+
+
+def test_bad_inputs_are_one_line_errors(tmp_path, capsys, no_points_folder):
+    rc, cap = _run([tmp_path / "missing", "-o", tmp_path / "o"], capsys)
+    assert rc == 2 and cap.err.count("\n") == 1 and "splatstyler: error:" in cap.err
+    rc, cap = _run([no_points_folder, "-o", tmp_path / "o2", "--resume"], capsys)
+    assert rc == 2 and "checkpoint" in cap.err and cap.err.count("\n") == 1
+    rc, cap = _run([no_points_folder, "-o", tmp_path / "o3", "--depth", "mono"], capsys)
+    assert rc == 2 and "SfM points" in cap.err and cap.err.count("\n") == 1
+    assert not (tmp_path / "o3" / "point_cloud.ply").exists()
