@@ -155,7 +155,9 @@ def run(args: argparse.Namespace) -> list[dict]:
     try:
         sizes = [int(s) for s in str(args.sizes).split(",") if s.strip()]
     except ValueError:
-        raise SystemExit(f"splatstyler bench ccft: --sizes must be comma-separated integers, got {args.sizes!r}")
+        from training.errors import InputError
+
+        raise InputError(None, f"--sizes must be comma-separated integers, got {args.sizes!r}") from None
     cases = [(n, m) for n in sizes for m in sizes]
     rows = []
     with tempfile.TemporaryDirectory(prefix="splatstyler-bench-ccft-") as tmp:

@@ -60,7 +60,8 @@ def _chunk_rows(chunk_elements: int, row_size: int) -> int:
 
 
 @torch.no_grad()
-def topk_support(Xn: torch.Tensor, Z: torch.Tensor, k: int, chunk_elements: int = DEFAULT_CHUNK_ELEMENTS) -> torch.Tensor:
+def topk_support(Xn: torch.Tensor, Z: torch.Tensor, k: int,
+                 chunk_elements: int = DEFAULT_CHUNK_ELEMENTS) -> torch.Tensor:
     """Indices (n, k) of the k largest entries of each row of Xn @ Z^T, computed chunk by chunk.
 
     Xn (n, C), Z (m, C). Peak extra memory: one (chunk, m) block."""
