@@ -122,7 +122,7 @@ def test_far_costs_at_small_epsilon_stay_finite(backend):
 def test_compiled_kernel_falls_back_to_log_domain_beyond_float64():
     """At epsilon = 0.001 a cost gap of 1.9 is exp(-1900) = 0 in float64: a column reached only by such edges would
     get v = inf from the scalings; the log domain still gives its (tiny but exact) plan."""
-    n, m, k = 40, 50, 2
+    n, m = 40, 50  # K = 2 edges a row
     g = torch.Generator().manual_seed(23)
     indices = torch.stack([torch.arange(n) % 30, 30 + torch.arange(n) % 20], dim=1)  # columns 30.. only as 2nd edge
     cost = torch.stack([0.05 * torch.rand(n, generator=g, dtype=torch.float64),

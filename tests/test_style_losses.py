@@ -69,7 +69,8 @@ def test_nnfm_is_the_mean_nearest_cosine_distance(feats):
     photo, _, style = feats
     X = photo[0].flatten(1).t().double().requires_grad_(True)
     Y = style[0].flatten(1).t().double()
-    loss, stats = NNFMStyleLoss(chunk_elements=100 * style.shape[2] * style.shape[3] + 7)(X.t().reshape(photo.shape), Y.t().reshape(style.shape))
+    nnfm = NNFMStyleLoss(chunk_elements=100 * style.shape[2] * style.shape[3] + 7)  # several chunks, a ragged one
+    loss, stats = nnfm(X.t().reshape(photo.shape), Y.t().reshape(style.shape))
     D = 1 - F.normalize(X, dim=1) @ F.normalize(Y, dim=1).t()
     ref = D.min(dim=1).values.mean()
     torch.testing.assert_close(loss, ref, rtol=1e-12, atol=1e-12)

