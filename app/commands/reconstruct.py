@@ -84,6 +84,14 @@ def _scale_densify_to_iterations(cfg, preset_iterations: int) -> None:
     cfg.sh_interval = max(1, int(round(cfg.sh_interval * f)))
 
 
+def _one_line_warnings() -> None:
+    """Show warnings as the CLI's other messages: one line, no source excerpt."""
+    import warnings
+
+    warnings.formatwarning = lambda message, category, filename, lineno, line=None: (
+        f"splatstyler: warning: {message}\n")
+
+
 def run(args) -> int:
     import json
     import time
@@ -97,6 +105,7 @@ def run(args) -> int:
     from training.atomic_write import atomic_open
     from training.metrics import constant_color_psnr
 
+    _one_line_warnings()
     out = Path(args.output)
     if out.exists() and not out.is_dir():
         raise InputError(out, "the output path exists and is not a folder")
