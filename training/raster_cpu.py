@@ -358,10 +358,17 @@ def _row_span(mx, my, ca, cb, cc, log_thr, py, x0, x1):
 
 
 @njit(inline="always", **_jit)
-def _power(mx, my, ca, cb, cc, px, py):
-    dx = mx - (np.float32(px) + np.float32(0.5))
+def _row_terms(my, cb, cc, py):
+    """Per-row constants of the exponent: dy, B dy and -C dy^2 / 2 (float32, shared by forward and backward)."""
     dy = my - (np.float32(py) + np.float32(0.5))
-    return np.float32(-0.5) * (ca * dx * dx + cc * dy * dy) - cb * dx * dy, dx, dy
+    return dy, cb * dy, np.float32(-0.5) * cc * dy * dy
+
+
+@njit(inline="always", **_jit)
+def _power(mx, ca, bdy, cdy, px):
+    """Exponent -0.5 d^T Q d at pixel px of a row, and dx."""
+    dx = mx - (np.float32(px) + np.float32(0.5))
+    return np.float32(-0.5) * ca * dx * dx - bdy * dx + cdy, dx
 
 
 @njit(parallel=True, **_jit)
@@ -390,12 +397,13 @@ def _composite_fwd(offsets, ids, means2d, conics, opac, feats, radii, width, hei
             by0, by1 = _rows(my, radii[g, 1], y0, y1)
             for py in range(by0, by1):
                 bx0, bx1 = _row_span(mx, my, ca, cb, cc, log_thr, py, x0, x1)
+                dy, bdy, cdy = _row_terms(my, cb, cc, py)
                 row = (py - y0) * tw - x0
                 for px in range(bx0, bx1):
                     p = row + px
                     if done[p]:
                         continue
-                    power, dx, dy = _power(mx, my, ca, cb, cc, px, py)
+                    power, dx = _power(mx, ca, bdy, cdy, px)
                     if power > 0 or power < log_thr:
                         continue
                     alpha = min(np.float32(ALPHA_MAX), o * np.exp(power))
@@ -472,12 +480,14 @@ def _composite_bwd(offsets, ids, means2d, conics, opac, feats, radii, width, hei
             jl = j - s
             for py in range(by0, by1):
                 bx0, bx1 = _row_span(mx, my, ca, cb, cc, log_thr, py, x0, x1)
+                dy, bdy, cdy = _row_terms(my, cb, cc, py)
+                dy64 = np.float64(dy)
                 row = (py - y0) * tw - x0
                 for px in range(bx0, bx1):
                     p = row + px
                     if jl >= last[p]:
                         continue
-                    power, dx, dy = _power(mx, my, ca, cb, cc, px, py)
+                    power, dx = _power(mx, ca, bdy, cdy, px)
                     if power > 0 or power < log_thr:
                         continue
                     gauss = np.exp(power)
@@ -487,10 +497,11 @@ def _composite_bwd(offsets, ids, means2d, conics, opac, feats, radii, width, hei
                     touched = True
                     a64 = np.float64(alpha)
                     one_minus = 1.0 - a64
-                    t_before = T[p] / one_minus
+                    inv = 1.0 / one_minus
+                    t_before = T[p] * inv
                     T[p] = t_before
                     w = a64 * t_before
-                    v_alpha = -gT[p] / one_minus
+                    v_alpha = -gT[p] * inv
                     for c in range(n_ch):
                         f = np.float64(feats[g, c])
                         vf[c] += w * gf[p, c]
@@ -499,7 +510,7 @@ def _composite_bwd(offsets, ids, means2d, conics, opac, feats, radii, width, hei
                     if o * gauss <= np.float32(ALPHA_MAX):
                         vo += v_alpha * gauss
                         vpow = v_alpha * a64
-                        dx64, dy64 = np.float64(dx), np.float64(dy)
+                        dx64 = np.float64(dx)
                         vmx -= vpow * (ca * dx64 + cb * dy64)
                         vmy -= vpow * (cc * dy64 + cb * dx64)
                         va -= 0.5 * vpow * dx64 * dx64
