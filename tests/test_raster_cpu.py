@@ -153,3 +153,15 @@ def test_backend_choice(monkeypatch):
     with pytest.raises(ValueError):
         rasterize(torch.zeros(2, 3), torch.zeros(2, 4), torch.zeros(2, 3), torch.zeros(2), torch.zeros(3, 3),
                   torch.eye(4), torch.eye(3), 8, 8)
+
+
+def test_depth_order_is_a_stable_argsort():
+    from training.raster_cpu import depth_order
+
+    seed = fresh_seed("depth-order")
+    rng = np.random.default_rng(seed)
+    for n in (0, 1, 7, 5000):
+        d = (rng.standard_normal(n) * 3).astype(np.float32)
+        d[: n // 3] = np.round(d[: n // 3])  # many ties, including -0.0 and 0.0
+        visible = np.flatnonzero(rng.random(n) > 0.2)
+        assert np.array_equal(depth_order(d, visible), visible[np.argsort(d[visible], kind="stable")])

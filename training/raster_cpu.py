@@ -295,6 +295,38 @@ def _project_bwd(means, quats, scales, view, kmat, width, height, eps2d, radii, 
 
 
 @njit(**_jit)
+def _radix_argsort(keys, values):
+    """values reordered by increasing uint32 keys, stable (ties keep their order): two 16-bit LSD passes."""
+    n = keys.shape[0]
+    k_a, v_a = keys.copy(), values.copy()
+    k_b = np.empty_like(keys)
+    v_b = np.empty_like(values)
+    for shift in (0, 16):
+        counts = np.zeros(65537, np.int64)
+        for i in range(n):
+            counts[((k_a[i] >> shift) & 0xFFFF) + 1] += 1
+        for d in range(65536):
+            counts[d + 1] += counts[d]
+        for i in range(n):
+            d = (k_a[i] >> shift) & 0xFFFF
+            pos = counts[d]
+            counts[d] = pos + 1
+            k_b[pos] = k_a[i]
+            v_b[pos] = v_a[i]
+        k_a, k_b = k_b, k_a
+        v_a, v_b = v_b, v_a
+    return v_a
+
+
+def depth_order(depths: np.ndarray, visible: np.ndarray) -> np.ndarray:
+    """Indices ``visible`` sorted by float32 depth, stable: the same order as a stable argsort."""
+    bits = (depths[visible] + np.float32(0.0)).view(np.uint32)  # + 0 turns -0.0 into 0.0, which sort as equal
+    # IEEE floats order like integers once negatives have all bits flipped and positives their sign bit set.
+    keys = np.where(bits >> 31, ~bits, bits | np.uint32(0x80000000)).astype(np.uint32)
+    return _radix_argsort(keys, visible.astype(np.int64))
+
+
+@njit(**_jit)
 def _bin(order, means2d, radii, tile_size, tiles_x, tiles_y):
     """Per-tile lists of Gaussian ids in the order given (front to back). Returns (offsets, ids)."""
     n_tiles = tiles_x * tiles_y
@@ -734,7 +766,7 @@ def render_features_cpu(means, quats, scales, opacities, colors, viewmat, K, wid
     _project_fwd(m_np, q_np, s_np, o_np, view, kmat, width, height, near_plane, far_plane, eps2d,
                  means2d, conics, depths, radii)
     visible = np.flatnonzero(radii[:, 0] > 0)
-    order = visible[np.argsort(depths[visible], kind="stable")].astype(np.int64)
+    order = depth_order(depths, visible)
     tiles_x = (width + tile_size - 1) // tile_size
     tiles_y = (height + tile_size - 1) // tile_size
     offsets, ids = _bin(order, means2d, radii, tile_size, tiles_x, tiles_y)
