@@ -99,3 +99,14 @@ def test_bad_inputs_are_one_line_errors(tmp_path, capsys, no_points_folder):
     rc, cap = _run([no_points_folder, "-o", tmp_path / "o3", "--depth", "mono"], capsys)
     assert rc == 2 and "SfM points" in cap.err and cap.err.count("\n") == 1
     assert not (tmp_path / "o3" / "point_cloud.ply").exists()
+
+
+def test_bench_reconstruct_reports_phases(demo_folder, capsys):
+    rc = main(["bench", "reconstruct", "--scene", str(demo_folder), "--downscale", "1", "--iters", "3",
+               "--warmup", "1", "--backends", "cpu", "--json"])
+    assert rc == 0
+    rows = [json.loads(line) for line in capsys.readouterr().out.splitlines() if line.startswith("{")]
+    assert len(rows) == 1 and rows[0]["backend"] == "cpu" and rows[0]["size"] == "64x48"
+    phases = [rows[0][f"ms_{k}"] for k in ("rasterize", "loss", "backward", "optimizer", "densify")]
+    assert all(p >= 0 for p in phases) and rows[0]["it_per_s"] > 0
+    assert sum(phases) <= rows[0]["ms_total"] * 1.001

@@ -14,7 +14,6 @@ mode renders. Every map comes with a boolean validity mask; L_depth only looks w
 
 from __future__ import annotations
 
-import logging
 import warnings
 from dataclasses import dataclass
 from pathlib import Path
@@ -24,7 +23,6 @@ import numpy as np
 from training.errors import InputError
 from training.scene import Camera, Scene
 
-log = logging.getLogger(__name__)
 
 MONO_MODEL_ID = "depth-anything/Depth-Anything-V2-Small-hf"
 DEPTH_MODES = ("sfm", "mono", "none")
