@@ -328,7 +328,7 @@ def depth_order(depths: np.ndarray, visible: np.ndarray) -> np.ndarray:
 
 @njit(**_jit)
 def _bin(order, means2d, radii, tile_size, tiles_x, tiles_y):
-    """Per-tile lists of Gaussian ids in the order given (front to back). Returns (offsets, ids)."""
+    """Per-tile lists of depth ranks k (Gaussian order[k]), front to back. Returns (offsets, ranks)."""
     n_tiles = tiles_x * tiles_y
     counts = np.zeros(n_tiles + 1, np.int64)
     n = order.shape[0]
@@ -349,11 +349,10 @@ def _bin(order, means2d, radii, tile_size, tiles_x, tiles_y):
     cursor = offsets[:-1].copy()
     ids = np.empty(offsets[-1], np.int32)
     for k in range(n):
-        g = order[k]
         for ty in range(rect[k, 2], rect[k, 3]):
             for tx in range(rect[k, 0], rect[k, 1]):
                 t = ty * tiles_x + tx
-                ids[cursor[t]] = g
+                ids[cursor[t]] = k
                 cursor[t] += 1
     return offsets, ids
 
@@ -404,8 +403,8 @@ def _power(mx, ca, bdy, cdy, px):
 
 
 @njit(parallel=True, **_jit)
-def _composite_fwd(offsets, ids, means2d, conics, opac, feats, radii, width, height, tile_size, tiles_x,
-                   out_feat, out_t, out_last):
+def _composite_fwd(offsets, ids, rec, feats, width, height, tile_size, tiles_x, out_feat, out_t, out_last):
+    """ids: depth ranks; rec (V, 8) and feats (V, C) are packed in depth order (see _pack)."""
     n_tiles = offsets.shape[0] - 1
     n_ch = feats.shape[1]
     for t in prange(n_tiles):
@@ -422,11 +421,9 @@ def _composite_fwd(offsets, ids, means2d, conics, opac, feats, radii, width, hei
         s = offsets[t]
         for j in range(s, offsets[t + 1]):
             g = ids[j]
-            mx, my = means2d[g, 0], means2d[g, 1]
-            ca, cb, cc = conics[g, 0], conics[g, 1], conics[g, 2]
-            o = opac[g]
-            log_thr = math.log(ALPHA_MIN / np.float64(o)) - SKIP_MARGIN
-            by0, by1 = _rows(my, radii[g, 1], y0, y1)
+            mx, my, ca, cb, cc, o, log_thr = rec[g, 0], rec[g, 1], rec[g, 2], rec[g, 3], rec[g, 4], rec[g, 5], \
+                rec[g, 6]
+            by0, by1 = _rows(my, rec[g, 7], y0, y1)
             for py in range(by0, by1):
                 bx0, bx1 = _row_span(mx, my, ca, cb, cc, log_thr, py, x0, x1)
                 dy, bdy, cdy = _row_terms(my, cb, cc, py)
@@ -464,9 +461,9 @@ def _composite_fwd(offsets, ids, means2d, conics, opac, feats, radii, width, hei
 
 
 @njit(parallel=True, **_jit)
-def _composite_bwd(offsets, ids, means2d, conics, opac, feats, radii, width, height, tile_size, tiles_x,
-                   out_t, out_last, g_feat, g_t, grad_buf):
-    """grad_buf: (threads, N, 6 + C) float64 zeroed; per Gaussian [mx, my, conic a, b, c, opacity, feats...]."""
+def _composite_bwd(offsets, ids, rec, feats, width, height, tile_size, tiles_x, out_t, out_last, g_feat, g_t,
+                   grad_buf):
+    """grad_buf: (threads, V, 6 + C) float64 zeroed; per depth rank [mx, my, conic a, b, c, opacity, feats...]."""
     n_tiles = offsets.shape[0] - 1
     n_ch = feats.shape[1]
     for t in prange(n_tiles):
@@ -495,11 +492,9 @@ def _composite_bwd(offsets, ids, means2d, conics, opac, feats, radii, width, hei
         vf = np.empty(n_ch)
         for j in range(s + max_last - 1, s - 1, -1):
             g = ids[j]
-            mx, my = means2d[g, 0], means2d[g, 1]
-            ca, cb, cc = conics[g, 0], conics[g, 1], conics[g, 2]
-            o = opac[g]
-            log_thr = math.log(ALPHA_MIN / np.float64(o)) - SKIP_MARGIN
-            by0, by1 = _rows(my, radii[g, 1], y0, y1)
+            mx, my, ca, cb, cc, o, log_thr = rec[g, 0], rec[g, 1], rec[g, 2], rec[g, 3], rec[g, 4], rec[g, 5], \
+                rec[g, 6]
+            by0, by1 = _rows(my, rec[g, 7], y0, y1)
             vmx = 0.0
             vmy = 0.0
             va = 0.0
@@ -680,6 +675,21 @@ def _sh_bwd(coeffs, means, campos, degree, radii, rgb, v_rgb, v_coeffs, v_means)
             v_means[i, 2] += (gz - uz * dot) / norm
 
 
+def _pack(order, means2d, conics, opac, radii):
+    """(V, 8) float32 records in depth order: mx, my, conic a, b, c, opacity, log(1/(255 o)) - margin, radius y.
+
+    The kernels read Gaussians through their depth rank, so a tile's list walks this array forwards instead of
+    gathering from five arrays at random (which cost a cache miss each at 200k Gaussians)."""
+    rec = np.empty((order.shape[0], 8), np.float32)
+    rec[:, 0:2] = means2d[order]
+    rec[:, 2:5] = conics[order]
+    o = opac[order]
+    rec[:, 5] = o
+    rec[:, 6] = np.log(ALPHA_MIN / o.astype(np.float64)) - SKIP_MARGIN
+    rec[:, 7] = radii[order, 1]
+    return rec
+
+
 class _CompositeState:
     """What the forward pass keeps for the backward pass (numpy arrays, float32 unless noted)."""
 
@@ -709,8 +719,9 @@ class _RasterizeCPU(torch.autograd.Function):
         out_feat = np.empty((H, W, st.n_ch), np.float32)
         out_t = np.empty((H, W), np.float32)
         out_last = np.empty((H, W), np.int32)
-        _composite_fwd(st.offsets, st.ids, st.means2d, st.conics, st.opac, feats, st.radii, W, H,
-                       st.tile_size, st.tiles_x, out_feat, out_t, out_last)
+        st.packed_feats = np.ascontiguousarray(feats[st.order])
+        _composite_fwd(st.offsets, st.ids, st.rec, st.packed_feats, W, H, st.tile_size, st.tiles_x, out_feat, out_t,
+                       out_last)
         st.out_t, st.out_last = out_t, out_last
         ctx.st = st
         return torch.from_numpy(out_feat), torch.from_numpy(out_t).unsqueeze(-1)
@@ -722,10 +733,11 @@ class _RasterizeCPU(torch.autograd.Function):
         H, W = st.height, st.width
         g_feat_np = (g_feat if g_feat is not None else torch.zeros(H, W, n_ch)).float().contiguous().numpy()
         g_t_np = (g_t if g_t is not None else torch.zeros(H, W, 1)).float().contiguous().numpy()[..., 0]
-        grad_buf = np.zeros((numba.get_num_threads(), n, 6 + n_ch))
-        _composite_bwd(st.offsets, st.ids, st.means2d, st.conics, st.opac, st.feats, st.radii, W, H,
-                       st.tile_size, st.tiles_x, st.out_t, st.out_last, g_feat_np, g_t_np, grad_buf)
-        gsum = grad_buf.sum(axis=0)
+        grad_buf = np.zeros((numba.get_num_threads(), st.order.shape[0], 6 + n_ch))
+        _composite_bwd(st.offsets, st.ids, st.rec, st.packed_feats, W, H, st.tile_size, st.tiles_x, st.out_t,
+                       st.out_last, g_feat_np, g_t_np, grad_buf)
+        gsum = np.zeros((n, 6 + n_ch))
+        gsum[st.order] = grad_buf.sum(axis=0)
         v_means2d = gsum[:, 0:2].astype(np.float32)
         v_conics = gsum[:, 2:5].astype(np.float32)
         v_opac = gsum[:, 5].astype(np.float32)
@@ -779,7 +791,7 @@ def render_features_cpu(means, quats, scales, opacities, colors, viewmat, K, wid
         means=m_np, quats=q_np, scales=s_np, opac=o_np, colors=c_np, view=view, kmat=kmat, eps2d=eps2d,
         campos=-view[:3, :3].T @ view[:3, 3], sh_degree=sh_degree, use_rgb=use_rgb, use_depth=use_depth,
         n_ch=3 * use_rgb + use_depth, means2d=means2d, conics=conics, depths=depths, radii=radii,
-        offsets=offsets, ids=ids, width=width, height=height, tile_size=tile_size, tiles_x=tiles_x)
+        offsets=offsets, ids=ids, order=order, rec=_pack(order, means2d, conics, o_np, radii), width=width, height=height, tile_size=tile_size, tiles_x=tiles_x)
     feat_img, trans = _RasterizeCPU.apply(*ins, means2d_t, st)
     radii_out = torch.from_numpy(radii.max(axis=1))
     return feat_img, trans, means2d_t, radii_out, torch.from_numpy(depths)
