@@ -22,24 +22,25 @@ def _check_close(got, ref, near, atol, label):
 
 
 @pytest.mark.parametrize(
-    "size,fx_scale,fy_ratio,principal,sh_degree,mode",
+    "size,fx_scale,fy_ratio,principal,sh_degree,mode,tile_size",
     [
-        ((61, 45), 0.9, 1.1, (0.4, 0.6), None, "RGB+D"),  # odd size, fx != fy, off-centre principal point
-        ((64, 48), 1.2, 1.0, (0.5, 0.5), 3, "RGB+ED"),
-        ((33, 70), 0.7, 0.8, (0.7, 0.3), 1, "RGB"),
-        ((47, 29), 1.0, 1.0, (0.5, 0.5), None, "D"),
-        ((40, 40), 1.0, 1.0, (0.2, 0.9), 2, "ED"),
-        ((1, 1), 1.0, 1.0, (0.5, 0.5), None, "RGB+D"),  # a single pixel
+        ((61, 45), 0.9, 1.1, (0.4, 0.6), None, "RGB+D", 16),  # odd size, fx != fy, off-centre principal point
+        ((64, 48), 1.2, 1.0, (0.5, 0.5), 3, "RGB+ED", 16),
+        ((33, 70), 0.7, 0.8, (0.7, 0.3), 1, "RGB", 8),
+        ((47, 29), 1.0, 1.0, (0.5, 0.5), None, "D", 16),
+        ((40, 40), 1.0, 1.0, (0.2, 0.9), 2, "ED", 16),
+        ((1, 1), 1.0, 1.0, (0.5, 0.5), None, "RGB+D", 16),  # a single pixel
     ],
 )
-def test_cpu_forward_matches_bruteforce(size, fx_scale, fy_ratio, principal, sh_degree, mode):
+def test_cpu_forward_matches_bruteforce(size, fx_scale, fy_ratio, principal, sh_degree, mode, tile_size):
     seed = fresh_seed("cpu-vs-brute")
     w, h = size
     n = 400 if w * h > 1 else 50
     scene = random_scene(n, w, h, seed, edge_cases=True, sh_degree=sh_degree, fx_scale=fx_scale,
                          fy_ratio=fy_ratio, principal=principal, log_scale_mean=-2.5)
     bg = torch.tensor([0.25, 0.5, 0.75])
-    img, alpha, info = rasterize(*scene, w, h, sh_degree=sh_degree, background=bg, render_mode=mode, backend="cpu")
+    img, alpha, info = rasterize(*scene, w, h, sh_degree=sh_degree, background=bg, render_mode=mode, backend="cpu",
+                                 tile_size=tile_size)
     rgb_ref, d_ref, a_ref, near = bruteforce_render(*scene, w, h, sh_degree=sh_degree, background=bg)
     assert info["backend"] == "cpu"
     assert img.dtype == torch.float32 and alpha.shape == (h, w, 1)
@@ -86,6 +87,9 @@ def test_cpu_gradients_match_torch_reference(sh_degree):
         assert r.norm() > 0, name
         assert rel <= 1e-4, f"{name}: relative error {rel:.3g}"
     assert torch.equal(info_cpu["radii"] > 0, info_ref["radii"] > 0)
+    vis = info_ref["radii"] > 0
+    assert torch.allclose(info_cpu["means2d"][vis], info_ref["means2d"][vis], atol=1e-3)
+    assert torch.allclose(info_cpu["depths"], info_ref["depths"], rtol=1e-6)
     assert (info_cpu["radii"] - info_ref["radii"]).abs().max() <= 1
 
 
