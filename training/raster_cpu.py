@@ -38,6 +38,7 @@ T_MIN = 1e-4
 # 1/255 whatever the rounding of exp, so skipping cannot change which Gaussians composite.
 SKIP_MARGIN = 1e-3
 PROJ_CHUNK = 512
+TILE_CHUNK = 4  # tiles per work item in the compositing kernels (dynamic scheduling)
 
 # No fastmath on anything that decides whether a Gaussian composites: forward and backward must take the very
 # same decisions from the same float operations.
@@ -720,8 +721,10 @@ class _RasterizeCPU(torch.autograd.Function):
         out_t = np.empty((H, W), np.float32)
         out_last = np.empty((H, W), np.int32)
         st.packed_feats = np.ascontiguousarray(feats[st.order])
-        _composite_fwd(st.offsets, st.ids, st.rec, st.packed_feats, W, H, st.tile_size, st.tiles_x, out_feat, out_t,
-                       out_last)
+        # Tiles differ a lot in cost (sky vs detail): hand them out dynamically, a few at a time.
+        with numba.parallel_chunksize(TILE_CHUNK):
+            _composite_fwd(st.offsets, st.ids, st.rec, st.packed_feats, W, H, st.tile_size, st.tiles_x, out_feat,
+                           out_t, out_last)
         st.out_t, st.out_last = out_t, out_last
         ctx.st = st
         return torch.from_numpy(out_feat), torch.from_numpy(out_t).unsqueeze(-1)
@@ -734,8 +737,9 @@ class _RasterizeCPU(torch.autograd.Function):
         g_feat_np = (g_feat if g_feat is not None else torch.zeros(H, W, n_ch)).float().contiguous().numpy()
         g_t_np = (g_t if g_t is not None else torch.zeros(H, W, 1)).float().contiguous().numpy()[..., 0]
         grad_buf = np.zeros((numba.get_num_threads(), st.order.shape[0], 6 + n_ch))
-        _composite_bwd(st.offsets, st.ids, st.rec, st.packed_feats, W, H, st.tile_size, st.tiles_x, st.out_t,
-                       st.out_last, g_feat_np, g_t_np, grad_buf)
+        with numba.parallel_chunksize(TILE_CHUNK):
+            _composite_bwd(st.offsets, st.ids, st.rec, st.packed_feats, W, H, st.tile_size, st.tiles_x, st.out_t,
+                           st.out_last, g_feat_np, g_t_np, grad_buf)
         gsum = np.zeros((n, 6 + n_ch))
         gsum[st.order] = grad_buf.sum(axis=0)
         v_means2d = gsum[:, 0:2].astype(np.float32)
