@@ -5,11 +5,12 @@ without copies (``tensor.numpy()``):
 
 1. ``_project_fwd`` (parallel over Gaussians, float64 inside): EWA covariance + low-pass, conic, pixel mean,
    screen box where alpha can reach 1/255, culling (near/far, opacity, off-screen, degenerate).
-2. ``_bin`` : Gaussians in global depth order (one stable argsort of the visible depths) are counted and then
-   scattered into per-tile lists, so every list comes out sorted front to back without a per-pair sort.
-3. ``_composite_fwd`` (parallel over tiles): Gaussian-outer, pixel-inner over the Gaussian's box inside the
-   tile, per-pixel transmittance/accumulators in tile-local arrays; stores each pixel's final T and the count
-   of list entries it consumed ("last").
+2. ``depth_order`` + ``_bin``: the visible Gaussians in global depth order (a stable radix sort on the float
+   bits) are counted and then scattered into per-tile lists of depth ranks, so every list comes out sorted front
+   to back without a per-pair sort; ``_pack`` lays their screen-space records out in that order.
+3. ``_composite_fwd`` (parallel over tiles): Gaussian-outer, pixel-inner over the exact span of the Gaussian's
+   ellipse in each row of the tile, per-pixel transmittance/accumulators in tile-local arrays; stores each
+   pixel's final T and the count of list entries it consumed ("last").
 4. ``_composite_bwd`` (parallel over tiles): walks each tile's list back to front, recovering T before each
    Gaussian as T_after / (1 - alpha) like the CUDA kernels, with per-pixel state in float64. Per-Gaussian
    gradients are summed per tile and added into a per-thread buffer (one row block per numba thread), reduced
@@ -48,6 +49,9 @@ _jit = dict(cache=True, nogil=True)
 @njit(parallel=True, **_jit)
 def _project_fwd(means, quats, scales, opac, view, kmat, width, height, near, far, eps2d,
                  means2d, conics, depths, radii):
+    """means (N,3), quats (N,4), scales (N,3), opac (N,) float32; view (4,4), kmat (3,3) float64. Writes
+    means2d (N,2), conics (N,3) = (a, b, c) of the inverse 2D covariance, depths (N,) camera z, radii (N,2) int32
+    (0 where culled; then means2d and conics are 0)."""
     n = means.shape[0]
     fx, fy, cx, cy = kmat[0, 0], kmat[1, 1], kmat[0, 2], kmat[1, 2]
     tan_fovx = 0.5 * width / fx
@@ -764,8 +768,11 @@ class _RasterizeCPU(torch.autograd.Function):
                 torch.from_numpy(v_opac), v_colors, torch.from_numpy(v_means2d), None)
 
 
-def render_features_cpu(means, quats, scales, opacities, colors, viewmat, K, width, height, sh_degree,
-                        use_rgb, use_depth, near_plane, far_plane, eps2d, tile_size):
+def render_features_cpu(
+    means: torch.Tensor, quats: torch.Tensor, scales: torch.Tensor, opacities: torch.Tensor, colors: torch.Tensor,
+    viewmat: torch.Tensor, K: torch.Tensor, width: int, height: int, sh_degree: int | None, use_rgb: bool,
+    use_depth: bool, near_plane: float, far_plane: float, eps2d: float, tile_size: int,
+) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor, torch.Tensor, torch.Tensor]:
     """The cpu backend of ``training.rasterize.rasterize``: returns (features (H,W,C) without background,
     final transmittance (H,W,1), means2d (N,2) whose .grad receives the screen-space gradient, radii (N,) int32,
     depths (N,)). Gradients flow to means, quats, scales, opacities and colors (not to viewmat or K).

@@ -15,8 +15,11 @@ from __future__ import annotations
 import torch
 
 
-def render_features_cuda(means, quats, scales, opacities, colors, viewmat, K, width, height, sh_degree,
-                         use_rgb, use_depth, near_plane, far_plane, eps2d, tile_size):
+def render_features_cuda(
+    means: torch.Tensor, quats: torch.Tensor, scales: torch.Tensor, opacities: torch.Tensor, colors: torch.Tensor,
+    viewmat: torch.Tensor, K: torch.Tensor, width: int, height: int, sh_degree: int | None, use_rgb: bool,
+    use_depth: bool, near_plane: float, far_plane: float, eps2d: float, tile_size: int,
+) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor, torch.Tensor, torch.Tensor]:
     """The cuda backend of ``training.rasterize.rasterize``; same return values as the cpu backend."""
     from gsplat import rasterization
 
