@@ -1,0 +1,263 @@
+"""The stylization loop on a tiny demo scene: colour only, schedule, live config, colour transfer, bad inputs."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+import torch
+
+from training.demo_scene import make_demo_scene
+from training.errors import InputError
+from training.gaussian_init import gaussians_from_points
+from training.scene import Scene
+from training.style_image import MIN_STYLE_SIDE, check_style_array, load_style_image
+from training.stylize import (StylizeConfig, Stylizer, check_model_matches_scene, paper_schedule, schedule)
+
+SHARED = Path(__file__).resolve().parents[1].parent / "shared"
+BACKEND = "torch"  # the reference rasterizer: these tests are about the loop, not about rasterizer speed
+
+
+@pytest.fixture(scope="module")
+def vgg():
+    from training.vgg_features import load_vgg16_features
+
+    try:
+        return load_vgg16_features()
+    except InputError as exc:  # no cached weights and no registry to fetch them from
+        pytest.skip(f"VGG-16 weights unavailable: {exc}")
+
+
+@pytest.fixture(scope="module")
+def tiny():
+    """4 views of the demo scene at 64x48 and Gaussians (SH degree 1) from its surface points."""
+    demo = make_demo_scene(num_views=4, width=64, height=48, num_points=1500, supersample=1)
+    scene = Scene(cameras=demo.cameras, images=demo.images, points=demo.points, point_colors=demo.point_colors)
+    g = gaussians_from_points(demo.points, demo.point_colors, sh_degree=1)
+    g.opacity_logits = torch.full_like(g.opacity_logits, 2.0)  # cover the views (init opacity 0.1 leaves holes)
+    g.shN = torch.randn(g.shN.shape, generator=torch.Generator().manual_seed(0)) * 0.02
+    return scene, g
+
+
+def style_image() -> np.ndarray:
+    path = SHARED / "data" / "styles" / "starry_night.jpg"
+    if path.exists():
+        return load_style_image(path)
+    from training.demo_style import make_style_image
+
+    return np.asarray(make_style_image(size=256, seed=0), dtype=np.float32)
+
+
+def make(tiny, vgg, **overrides) -> Stylizer:
+    scene, g = tiny
+    cfg = StylizeConfig(preset="quick", max_side=64, backend=BACKEND, device="cpu", **overrides)
+    return Stylizer(g, scene, style_image(), cfg, vgg=vgg)
+
+
+def test_paper_schedule():
+    assert paper_schedule("forward", 20) == (50, 2000)
+    assert paper_schedule("360", 200) == (20, 0)
+    assert paper_schedule("360", 201) == (15, 0)
+    assert schedule(StylizeConfig(preset="quick"), "forward", 20) == (10, 400)
+    assert schedule(StylizeConfig(preset="quick"), "360", 67) == (4, 0)
+    assert schedule(StylizeConfig(iters_per_view=7, min_total_iters=9), "360", 5) == (7, 9)
+
+
+def test_geometry_bit_identical_and_colours_change(tiny, vgg):
+    scene, g = tiny
+    before = {k: getattr(g, k).clone() for k in ("means", "log_scales", "quats", "opacity_logits", "sh0", "shN")}
+    s = make(tiny, vgg, iters_per_view=2)
+    for _ in range(5):
+        r = s.step()
+        assert np.isfinite(r["loss"])
+    s.finish()
+    out = s.stylized_gaussians()
+    for name in ("means", "log_scales", "quats", "opacity_logits"):
+        assert torch.equal(getattr(out, name), before[name]), name
+    assert not torch.equal(out.sh0, before["sh0"]) and not torch.equal(out.shN, before["shN"])
+    for name, value in before.items():  # the caller's model is untouched
+        assert torch.equal(getattr(g, name), value), name
+
+
+def test_dc_only_keeps_higher_orders_frozen(tiny, vgg):
+    s = make(tiny, vgg, dc_only=True, color_transfer=False, iters_per_view=1)
+    shN0 = s.gaussians.shN.clone()
+    sh00 = s.gaussians.sh0.clone()
+    for _ in range(3):
+        s.step()
+    assert torch.equal(s.gaussians.shN, shN0)
+    assert not torch.equal(s.gaussians.sh0, sh00)
+
+
+def test_views_follow_the_trajectory_with_iters_per_view(tiny, vgg):
+    s = make(tiny, vgg, iters_per_view=2, view_order="dataset", virtual_views=1)
+    assert len(s.trajectory) == 4 + 3
+    assert s.total_iters == 2 * 7
+    positions = [s.step()["trajectory_position"] for _ in range(6)]
+    assert positions == [0, 0, 1, 1, 2, 2]
+    assert s.trajectory[1].is_virtual and s.trajectory[2].source_index == 1
+
+
+def test_config_changes_take_effect_on_the_next_step(tiny, vgg):
+    # Two stylizers in the same state; after one common step, one continues with tau = 0.01, the other with 1.
+    runs = []
+    for tau in (0.01, 1.0):
+        s = make(tiny, vgg, iters_per_view=5, color_transfer=False)
+        s.step()
+        s.config.tau = tau
+        s.config.lr = 0.02
+        r = s.step()
+        assert s.style_loss.tau == tau
+        assert all(group["lr"] == pytest.approx(0.02 * group["lr_scale"]) for group in s._optimizer.param_groups)
+        runs.append(r)
+    # A stronger capacity constraint spreads the plan over more style features: higher column entropy.
+    assert runs[1]["column_entropy"] > runs[0]["column_entropy"]
+    s.config.loss = "nnfm"
+    r = s.step()
+    assert "distinct_fraction" in r and s.style_loss.name == "nnfm"
+    s.config.k = 0
+    with pytest.raises(ValueError):
+        s.step()
+
+
+def test_post_colour_transfer_refits_from_the_renders(tiny, vgg):
+    s = make(tiny, vgg, iters_per_view=1)
+    s.step()
+    before = s.gaussians.detached()
+    renders = s.render_views()
+    s.finish()
+    t = s.post_transform
+    assert t is not None
+    # The map was fitted on the renders' covered pixels, and applied to the SH as an affine map of the DC colour.
+    from training.color_transfer import fit_color_transfer, foreground_pixels
+
+    refit = fit_color_transfer([foreground_pixels(img, a) for img, a in renders], style_image().reshape(-1, 3))
+    assert np.allclose(refit.A, t.A, atol=1e-6) and np.allclose(refit.b, t.b, atol=1e-6)
+    from training.gaussians import sh0_to_rgb
+
+    rgb_before = sh0_to_rgb(before.sh0[:, 0]).double().numpy()
+    rgb_after = sh0_to_rgb(s.gaussians.sh0[:, 0]).double().numpy()
+    assert np.allclose(rgb_after, rgb_before @ t.A.T + t.b, atol=1e-4)
+    assert np.allclose(s.gaussians.shN.double().numpy(), before.shN.double().numpy() @ t.A.T, atol=1e-5)
+
+
+def test_model_from_another_place_is_refused(tiny, vgg):
+    scene, g = tiny
+    far = g.detached()
+    far.means = far.means + torch.tensor([0.0, 0.0, 100.0])  # far above every camera's view
+    with pytest.raises(InputError, match="inside any camera"):
+        check_model_matches_scene(far, scene.cameras, "other.ply")
+    faint = g.detached()
+    faint.opacity_logits = torch.full_like(faint.opacity_logits, -12.0)  # in view, but renders nothing
+    with pytest.raises(InputError, match="empty"):
+        Stylizer(faint, scene, style_image(), StylizeConfig(preset="quick", max_side=64, backend=BACKEND), vgg=vgg,
+                 model_name="faint.ply")
+    assert check_model_matches_scene(g, scene.cameras) > 0.9
+
+
+def write(path: Path, array: np.ndarray, dtype: str) -> Path:
+    from training.image_io import write_image
+
+    write_image(path, array, dtype=dtype)
+    return path
+
+
+def test_bad_style_images(tmp_path):
+    rng = np.random.default_rng(0)
+    garbage = tmp_path / "garbage.png"
+    garbage.write_bytes(b"\x89PNG\r\n\x1a\n" + bytes(rng.integers(0, 256, 300, dtype=np.uint8)))
+    with pytest.raises(InputError, match="garbage.png"):
+        load_style_image(garbage)
+    with pytest.raises(InputError, match="missing.png"):
+        load_style_image(tmp_path / "missing.png")
+    tiny = write(tmp_path / "tiny.png", rng.uniform(size=(40, 120, 3)), "uint8")
+    with pytest.raises(InputError, match=f"at least {MIN_STYLE_SIDE}"):
+        load_style_image(tiny)
+    # Grey: becomes RGB with three equal channels.
+    grey = rng.uniform(size=(80, 90)).astype(np.float32)
+    img = load_style_image(write(tmp_path / "grey.png", grey, "uint8"))
+    assert img.shape == (80, 90, 3) and np.array_equal(img[..., 0], img[..., 2])
+    assert np.allclose(img[..., 1], grey, atol=1 / 255)
+    # 16-bit: scaled by 65535, not clipped as if it were 8-bit.
+    deep = rng.uniform(size=(70, 70, 3)).astype(np.float32)
+    img16 = load_style_image(write(tmp_path / "deep.png", deep, "uint16"))
+    assert img16.dtype == np.float32 and np.allclose(img16, deep, atol=1 / 65535 + 1e-6)
+    # Arrays handed over in memory (the viewer): integer types are scaled, shape is checked.
+    assert np.allclose(check_style_array((deep * 65535).astype(np.uint16)), deep, atol=1e-4)
+    with pytest.raises(InputError):
+        check_style_array(np.zeros((100, 100, 2)))
+
+
+def close_views_scene(num_views: int, width: int, height: int, arc_degrees: float, num_points: int):
+    """Demo scene views on a short arc (neighbouring views overlap, as in a real capture) and its Gaussians."""
+    from training.demo_scene import DemoWorld, demo_cameras, demo_points
+
+    world = DemoWorld(0)
+    cams = demo_cameras(num_views, width, height, arc_degrees=arc_degrees)
+    images = [world.render(c, 1) for c in cams]
+    points, colours = demo_points(world, cams, num_points, 0)
+    scene = Scene(cameras=cams, images=images, points=points, point_colors=colours)
+    g = gaussians_from_points(points, colours, sh_degree=1)
+    g.opacity_logits = torch.full_like(g.opacity_logits, 2.0)
+    return scene, g
+
+
+@pytest.mark.slow
+def test_stylization_moves_renders_toward_the_painting(vgg):
+    """A short run on the demo scene with a real painting: the Gram distance to it falls by at least half."""
+    path = SHARED / "data" / "styles" / "starry_night.jpg"
+    if not path.exists():
+        pytest.skip(f"paintings not available: {path}")
+    scene, g = close_views_scene(4, 128, 96, 20.0, 4000)
+    cfg = StylizeConfig(preset="quick", max_side=128, iters_per_view=40, min_total_iters=0, lr=0.1)
+    s = Stylizer(g, scene, load_style_image(path), cfg, vgg=vgg)
+    start = s.style_distance(sh=s.original_sh)
+    s.run()
+    s.finish()
+    end = s.style_distance()
+    assert s.iteration == 160
+    assert s.history[-1]["style_loss"] < 0.8 * s.history[0]["style_loss"]
+    assert end <= 0.5 * start, (start, end)
+    for name in ("means", "log_scales", "quats", "opacity_logits"):
+        assert torch.equal(getattr(s.gaussians, name), getattr(g, name)), name
+
+
+def test_cli_writes_ply_renders_and_report(tmp_path, tiny, vgg, capsys):
+    import json
+
+    from app.cli import main
+    from training.demo_scene import DemoScene, write_demo_scene
+    from training.image_io import write_image
+    from training.ply_io import read_ply, write_ply
+
+    scene, g = tiny
+    data = write_demo_scene(tmp_path / "scene", DemoScene(scene.cameras, scene.images, scene.points,
+                                                          scene.point_colors))
+    write_ply(tmp_path / "model.ply", g)
+    style = tmp_path / "style.png"
+    write_image(style, style_image())
+    out = tmp_path / "out"
+    args = [str(tmp_path / "model.ply"), "--data", str(data), "--style", str(style), "-o", str(out),
+            "--preset", "quick", "--max-side", "64", "--iters-per-view", "1", "--backend", BACKEND]
+    assert main(["stylize", *args]) == 0
+    report = json.loads((out / "report.json").read_text())
+    assert report["iterations"] == 4 and report["num_views"] == 4
+    assert len(list((out / "renders").glob("*.png"))) == 4
+    assert 0 < report["utilisation"]["utilisation"] <= 1 and report["utilisation"]["column_entropy"] > 0
+    assert {"rasterize", "vgg_forward", "backward", "sinkhorn"} <= {k.split("/")[-1] for k in report["time_s"]}
+    assert report["style_distance"]["gram_end"] > 0
+    result = read_ply(out / "point_cloud.ply")
+    original = read_ply(tmp_path / "model.ply")
+    for name in ("means", "log_scales", "quats", "opacity_logits"):
+        assert torch.equal(getattr(result, name), getattr(original, name)), name
+
+    # Bad style: one line naming the file, exit code 2, nothing written.
+    capsys.readouterr()
+    bad_out = tmp_path / "bad"
+    (tmp_path / "broken.jpg").write_bytes(b"not an image")
+    args[3:7] = ["--style", str(tmp_path / "broken.jpg"), "-o", str(bad_out)]
+    assert main(["stylize", *args]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "broken.jpg" in err[0]
+    assert not bad_out.exists()
