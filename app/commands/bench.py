@@ -16,6 +16,7 @@ BENCHES: dict[str, tuple[str, str]] = {
     "reconstruct": ("training.bench_reconstruct", "iterations/s of the quick reconstruction preset, per phase"),
     "raster": ("training.bench_raster", "rasterizer forward/backward time and peak memory per backend vs the torch reference"),
     "ccft": ("training.bench_ccft", "CCFT loss time and peak memory for n, m in {1k, 4k, 16k} against dense POT"),
+    "stylize": ("training.bench_stylize", "stylization iterations/s with a per-stage breakdown (rasterize, VGG, top-K, Sinkhorn, backward)"),
 }
 
 
