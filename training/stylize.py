@@ -493,15 +493,22 @@ class Stylizer:
         self.times.add("post_color_transfer", time.perf_counter() - t0)
         return self.post_transform
 
-    def style_distance(self, sh: torch.Tensor | None = None) -> float:
-        """Mean over the scene's views of the Gram distance between the render's features and the painting's
-        (both prepared as for the loss). ``sh``: colours to render with (default: the current ones)."""
-        total = 0.0
+    def style_distance(self, sh: torch.Tensor | None = None) -> dict[str, float]:
+        """Mean over the scene's views of the Gram distance between the render's features and the painting's (both
+        prepared as for the loss): ``gram`` on the raw relu3 features, ``gram_normalised`` on features scaled to
+        unit length per position (blind to overall activation strength, i.e. contrast, which cosine-based losses
+        leave free). ``sh``: colours to render with (default: the current ones)."""
+        from training.ccft import l2_normalise
+
+        totals = {"gram": 0.0, "gram_normalised": 0.0}
         with torch.no_grad():
             for cam in self.cameras:
                 image, _ = self.render(cam, sh=sh)
-                total += gram_distance(self.features(image.clamp(0, 1)), self.style_features(cam))
-        return total / len(self.cameras)
+                f, fs = self.features(image.clamp(0, 1)), self.style_features(cam)
+                totals["gram"] += gram_distance(f, fs)
+                unit = lambda x: l2_normalise(x[0].flatten(1).t()).t().reshape(x.shape)  # noqa: E731
+                totals["gram_normalised"] += gram_distance(unit(f), unit(fs))
+        return {k: v / len(self.cameras) for k, v in totals.items()}
 
     def stylized_gaussians(self) -> Gaussians:
         """The current model, detached, on the CPU."""

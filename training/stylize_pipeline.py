@@ -93,9 +93,12 @@ def stylize_to_folder(model: Path, data: Path, style: Path, out: Path, config: S
         "vgg_weights": str(getattr(stylizer.vgg, "weights_source", "given")),
         "losses": {"first": first, "last": last, "history": stylizer.history},
         "style_distance": {
-            "metric": "Gram distance of VGG relu3 features to the painting, mean over views",
-            "gram_start": distance_start, "gram_after_pre_color_transfer": distance_pre, "gram_end": distance_end,
-            "ratio_end_to_start": distance_end / distance_start if distance_start > 0 else None,
+            "metric": "Gram distance of VGG relu3 features to the painting, mean over views (gram: raw features; "
+                      "gram_normalised: features of unit length per position)",
+            **{f"{k}_start": v for k, v in distance_start.items()},
+            **{f"{k}_after_pre_color_transfer": v for k, v in distance_pre.items()},
+            **{f"{k}_end": v for k, v in distance_end.items()},
+            **{f"{k}_ratio_end_to_start": distance_end[k] / v if v > 0 else None for k, v in distance_start.items()},
         },
         "utilisation": utilisation,
         "color_transfer": {

@@ -82,5 +82,6 @@ def run(args: argparse.Namespace) -> int:
     dist = report["style_distance"]
     print(f"stylized {report['num_views']} views in {report['iterations']} iterations "
           f"({time.perf_counter() - t0:.1f} s); Gram distance to the painting {dist['gram_start']:.4g} -> "
-          f"{dist['gram_end']:.4g}; wrote {args.output}")
+          f"{dist['gram_end']:.4g} (normalised features: {dist['gram_normalised_start']:.4g} -> "
+          f"{dist['gram_normalised_end']:.4g}); wrote {args.output}")
     return 0
