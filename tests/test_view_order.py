@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import json
 from pathlib import Path
 
 import numpy as np
@@ -113,17 +112,12 @@ def test_scene_kind_forward_facing_layout():
 
 
 def fox_cameras() -> list[Camera]:
-    path = SHARED / "data" / "scenes" / "fox" / "transforms.json"
+    from training.scene_loader import load_scene
+
+    path = SHARED / "data" / "scenes" / "fox"
     if not path.exists():
         pytest.skip(f"real scene not available: {path}")
-    meta = json.loads(path.read_text())
-    flip = np.diag([1.0, -1.0, -1.0, 1.0])  # NeRF/OpenGL camera axes to OpenCV's
-    cams = []
-    for fr in meta["frames"]:
-        c2w = np.asarray(fr["transform_matrix"], float) @ flip
-        cams.append(Camera(fr["file_path"], int(meta["w"]), int(meta["h"]), meta["fl_x"], meta["fl_y"],
-                           meta["cx"], meta["cy"], np.linalg.inv(c2w)))
-    return cams
+    return load_scene(path, load_images=False).cameras
 
 
 def test_scene_kind_of_fox_partial_orbit_is_360():
