@@ -13,7 +13,7 @@ def test_shape_loss_values_and_gradient():
                       [0.3, 0.1, 0.1]],     # 0.3 - 0.35 < 0: 0
                      requires_grad=True)
     loss = shape_loss(s, 3.5)
-    assert abs(float(loss) - 0.35 / 3) < 1e-7
+    assert abs(float(loss.detach()) - 0.35 / 3) < 1e-7
     loss.backward()
     expected = torch.zeros(3, 3)
     expected[1, 0] = 1 / 3
@@ -27,7 +27,7 @@ def test_size_loss_values_and_gradient():
                       [0.0005, 1e-4, 1e-4]],  # too small: 0.001 - 0.0005 = 0.0005
                      requires_grad=True)
     loss = size_loss(s, 0.1, 0.001)
-    assert abs(float(loss) - (0.2 + 0.0005) / 3) < 1e-7
+    assert abs(float(loss.detach()) - (0.2 + 0.0005) / 3) < 1e-7
     loss.backward()
     expected = torch.zeros(3, 3)
     expected[0, 0] = 1 / 3
@@ -45,7 +45,7 @@ def test_depth_loss_only_where_valid():
     valid = torch.tensor([[True, False], [True, False]])
     rendered = torch.tensor([[1.5, 100.0], [2.0, -7.0]], requires_grad=True)
     loss = depth_loss(rendered[..., None], target, valid)
-    assert abs(float(loss) - (0.5 + 1.0) / 2) < 1e-7
+    assert abs(float(loss.detach()) - (0.5 + 1.0) / 2) < 1e-7
     loss.backward()
     torch.testing.assert_close(rendered.grad, torch.tensor([[0.5, 0.0], [-0.5, 0.0]]))
     assert float(depth_loss(rendered, target, torch.zeros(2, 2, dtype=torch.bool))) == 0.0
