@@ -20,9 +20,10 @@ def bruteforce_render(
     sh_degree=None, background=None, near_plane=0.01, far_plane=1e10, eps2d=0.3,
 ):
     """All inputs as arrays/tensors (any float dtype). Returns float64 arrays rgb (H,W,3), depth (H,W,1) = sum
-    d_i a_i T_i, alpha (H,W,1), and a bool mask (H,W) of pixels "at the alpha threshold": where some Gaussian's
-    alpha lies within 1e-4 (relative) of the 1/255 cut or its transmittance within 1e-4 of the 1e-4 stop, so
-    that float32 rounding may legitimately flip whether it composites."""
+    d_i a_i T_i, alpha (H,W,1), and slack (H,W) >= 0, nonzero only for pixels "at the alpha threshold": where
+    some Gaussian's alpha lies within 1e-4 (relative) of the 1/255 cut or its transmittance within 1e-4 of the
+    1e-4 stop, so that float32 rounding may legitimately flip whether it composites. The slack bounds what such
+    flips can change in any channel: the sum of a_i T_i max(1, |c_i|, z_i) over those Gaussians."""
     f64 = lambda t: np.asarray(t.detach().cpu().numpy() if isinstance(t, torch.Tensor) else t, dtype=np.float64)
     means, quats, scales, opacities, viewmat, K = map(f64, (means, quats, scales, opacities, viewmat, K))
     n = means.shape[0]
@@ -69,8 +70,13 @@ def bruteforce_render(
     done = np.zeros(px.shape, bool)
     out_rgb = np.zeros((px.size, 3))
     out_d = np.zeros(px.size)
-    near = np.zeros(px.size, bool)
-    for i in np.argsort(z, kind="stable"):
+    slack = np.zeros(px.size)
+    c_max = max([1.0, float(np.abs(rgb).max(initial=0))] + ([float(np.abs(z[keep]).max())] if keep.any() else []))
+    if background is not None:
+        c_max = max(c_max, float(np.abs(f64(background)).max()))
+    # The depth order is defined on the float32 camera z, ties by index (as every backend sorts): Gaussians at
+    # equal depth (the test scenes put a slice exactly on the near plane) composite in the same order here.
+    for i in np.argsort(z.astype(np.float32), kind="stable"):
         if not keep[i]:
             continue
         dx, dy = mx[i] - px, my[i] - py
@@ -78,8 +84,11 @@ def bruteforce_render(
         alpha = np.minimum(0.99, opacities[i] * np.exp(power))
         use = (~done) & (power <= 0) & (alpha >= 1.0 / 255.0)
         next_T = T * (1.0 - alpha)
-        near |= (~done) & (power <= 0) & (np.abs(alpha * 255.0 - 1.0) < 1e-4)
-        near |= (~done) & (power <= 0) & (alpha >= 1.0 / 255.0) & (np.abs(next_T * 1e4 - 1.0) < 1e-4)
+        near_cut = (~done) & (power <= 0) & (np.abs(alpha * 255.0 - 1.0) < 1e-4)
+        near_stop = (~done) & (power <= 0) & (alpha >= 1.0 / 255.0) & (np.abs(next_T * 1e4 - 1.0) < 1e-4)
+        # Flipping the 1/255 cut changes this Gaussian's term and scales everything behind it by (1 - a): at most
+        # 2 a T c_max. Flipping the stop at T = 1e-4 changes at most T c_max.
+        slack += c_max * T * (2.0 * alpha * near_cut + near_stop)
         stop = use & (next_T <= 1e-4)
         done |= stop
         use &= ~stop
@@ -90,4 +99,14 @@ def bruteforce_render(
     if background is not None:
         out_rgb += T[:, None] * f64(background)
     return (out_rgb.reshape(height, width, 3), out_d.reshape(height, width, 1), (1.0 - T).reshape(height, width, 1),
-            near.reshape(height, width))
+            slack.reshape(height, width))
+
+
+def check_close(got, ref, slack, atol, label, scale=1.0):
+    """max |got - ref| <= atol except at alpha-threshold pixels (slack > 0, see bruteforce_render), which may be
+    off by 1e-3, or by more where a Gaussian at the 1/255 cut can account for it (a flip there costs ~T/255)."""
+    err = np.abs(np.asarray(got, np.float64) - ref).max(axis=-1)
+    at = slack > 0
+    assert err[~at].max(initial=0) <= atol, f"{label}: max error {err[~at].max(initial=0):.3g} off-threshold"
+    bound = np.maximum(1e-3, atol + slack / scale)
+    assert (err <= bound).all(), f"{label}: max error {err.max():.3g} at threshold pixels"
