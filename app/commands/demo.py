@@ -40,7 +40,8 @@ def run(args: argparse.Namespace) -> int:
         assets = demo_assets(out / "assets", progress=True)
         print(f"demo scene: {assets.scene_dir}\ndemo style: {assets.style_image}")
         return 0
-    if args.data is None or args.style is None:
+    generated_scene = args.data is None
+    if generated_scene or args.style is None:
         assets = demo_assets(progress=True)
     data = Path(args.data) if args.data else assets.scene_dir
     style = Path(args.style) if args.style else assets.style_image
@@ -50,7 +51,9 @@ def run(args: argparse.Namespace) -> int:
     recon = out / "reconstruction"
     steps = [
         ["reconstruct", str(data), "-o", str(recon), "--preset", "quick", "--backend", args.backend]
-        + (["--iters", str(args.recon_iters)] if args.recon_iters else []),
+        + (["--iters", str(args.recon_iters)] if args.recon_iters else [])
+        # the generated views are already CPU-sized (256x192); the quick preset's downscale is for photos
+        + (["--downscale", "1"] if generated_scene else []),
         ["stylize", str(recon / "point_cloud.ply"), "--data", str(data), "--style", str(style),
          "-o", str(out / "stylized"), "--preset", "quick", "--loss", args.loss, "--backend", args.backend]
         + (["--iters-per-view", str(args.iters_per_view)] if args.iters_per_view else []),
