@@ -210,7 +210,7 @@ def test_stylization_moves_renders_toward_the_painting(vgg):
     if not path.exists():
         pytest.skip(f"paintings not available: {path}")
     scene, g = close_views_scene(4, 128, 96, 20.0, 4000)
-    cfg = StylizeConfig(preset="quick", max_side=128, iters_per_view=40, min_total_iters=0, lr=0.1)
+    cfg = StylizeConfig(preset="quick", max_side=128, iters_per_view=40, min_total_iters=0)
     s = Stylizer(g, scene, load_style_image(path), cfg, vgg=vgg)
     start = s.style_distance(sh=s.original_sh)
     s.run()

@@ -32,7 +32,6 @@ def run(args: argparse.Namespace) -> list[dict]:
     import time
 
     import numpy as np
-    import torch
 
     from training.demo_scene import make_demo_scene
     from training.gaussian_init import gaussians_from_points

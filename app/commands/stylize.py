@@ -31,7 +31,7 @@ def register(sub: argparse._SubParsersAction) -> None:
                    help="style loss weight (default: 30 for ccft and nnfm, 1e4 for gram)")
     p.add_argument("--lambda-content", type=float, default=0.005, help="content loss weight (0.005)")
     p.add_argument("--lr", type=float, default=None,
-                   help="Adam learning rate of the DC colour (default: 0.02 paper, 0.05 quick)")
+                   help="Adam learning rate of the DC colour (default 0.02)")
     p.add_argument("--iters-per-view", type=int, default=None,
                    help="iterations per view (default: the paper's schedule for the scene kind)")
     p.add_argument("--min-total-iters", type=int, default=None, help="at least this many iterations in all")
