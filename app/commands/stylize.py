@@ -28,7 +28,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--lambda-guide", type=float, default=1.0, help="cross-view guidance weight (1)")
     p.add_argument("--sinkhorn-iters", type=int, default=50, help="Sinkhorn iterations per loss (50)")
     p.add_argument("--lambda-style", type=float, default=None,
-                   help="style loss weight (default: 30 for ccft and nnfm, 1e4 for gram)")
+                   help="style loss weight (default: 30 for ccft and nnfm, 1 for gram)")
     p.add_argument("--lambda-content", type=float, default=0.005, help="content loss weight (0.005)")
     p.add_argument("--lr", type=float, default=None,
                    help="Adam learning rate of the DC colour (default 0.02)")
