@@ -13,8 +13,9 @@ without copies (``tensor.numpy()``):
    pixel's final T and the count of list entries it consumed ("last").
 4. ``_composite_bwd`` (parallel over tiles): walks each tile's list back to front, recovering T before each
    Gaussian as T_after / (1 - alpha) like the CUDA kernels, with per-pixel state in float64. Per-Gaussian
-   gradients are summed per tile and added into a per-thread buffer (one row block per numba thread), reduced
-   afterwards: no two threads ever write the same memory.
+   gradients are summed per tile in float64 and written to that tile-Gaussian pair's own row, summed per
+   Gaussian afterwards (``_reduce_pairs``): no two threads ever write the same memory, whatever the thread
+   count, and memory grows with the pairs rather than threads x Gaussians.
 5. ``_project_bwd`` (parallel over Gaussians): screen-space gradients to means, quats, scales.
 
 SH colours (``_sh_fwd`` / ``_sh_bwd``) are evaluated only for visible Gaussians; their backward adds the
@@ -467,12 +468,13 @@ def _composite_fwd(offsets, ids, rec, feats, width, height, tile_size, tiles_x, 
 
 @njit(parallel=True, **_jit)
 def _composite_bwd(offsets, ids, rec, feats, width, height, tile_size, tiles_x, out_t, out_last, g_feat, g_t,
-                   grad_buf):
-    """grad_buf: (threads, V, 6 + C) float64 zeroed; per depth rank [mx, my, conic a, b, c, opacity, feats...]."""
+                   pair_grad):
+    """pair_grad: (P, 6 + C) float32, zeroed, one row per list entry j (a tile-Gaussian pair), receiving that
+    pair's gradient [mx, my, conic a, b, c, opacity, feats...]. Each row belongs to one tile, so no two threads
+    write the same memory; ``_reduce_pairs`` sums the rows per Gaussian afterwards."""
     n_tiles = offsets.shape[0] - 1
     n_ch = feats.shape[1]
     for t in prange(n_tiles):
-        tid = numba.get_thread_id()
         ty, tx = t // tiles_x, t % tiles_x
         x0, y0 = tx * tile_size, ty * tile_size
         x1, y1 = min(x0 + tile_size, width), min(y0 + tile_size, height)
@@ -549,14 +551,14 @@ def _composite_bwd(offsets, ids, rec, feats, width, height, tile_size, tiles_x, 
                         vb -= vpow * dx64 * dy64
                         vc -= 0.5 * vpow * dy64 * dy64
             if touched:
-                grad_buf[tid, g, 0] += vmx
-                grad_buf[tid, g, 1] += vmy
-                grad_buf[tid, g, 2] += va
-                grad_buf[tid, g, 3] += vb
-                grad_buf[tid, g, 4] += vc
-                grad_buf[tid, g, 5] += vo
+                pair_grad[j, 0] = vmx
+                pair_grad[j, 1] = vmy
+                pair_grad[j, 2] = va
+                pair_grad[j, 3] = vb
+                pair_grad[j, 4] = vc
+                pair_grad[j, 5] = vo
                 for c in range(n_ch):
-                    grad_buf[tid, g, 6 + c] += vf[c]
+                    pair_grad[j, 6 + c] = vf[c]
 
 
 @njit(inline="always", **_jit)
@@ -680,6 +682,17 @@ def _sh_bwd(coeffs, means, campos, degree, radii, rgb, v_rgb, v_coeffs, v_means)
             v_means[i, 2] += (gz - uz * dot) / norm
 
 
+@njit(**_jit)
+def _reduce_pairs(ids, pair_grad, n_ranks):
+    """(V, 6 + C) float64 per-depth-rank sums of the per-pair gradients."""
+    out = np.zeros((n_ranks, pair_grad.shape[1]))
+    for j in range(ids.shape[0]):
+        k = ids[j]
+        for c in range(pair_grad.shape[1]):
+            out[k, c] += pair_grad[j, c]
+    return out
+
+
 def _pack(order, means2d, conics, opac, radii):
     """(V, 8) float32 records in depth order: mx, my, conic a, b, c, opacity, log(1/(255 o)) - margin, radius y.
 
@@ -740,12 +753,12 @@ class _RasterizeCPU(torch.autograd.Function):
         H, W = st.height, st.width
         g_feat_np = (g_feat if g_feat is not None else torch.zeros(H, W, n_ch)).float().contiguous().numpy()
         g_t_np = (g_t if g_t is not None else torch.zeros(H, W, 1)).float().contiguous().numpy()[..., 0]
-        grad_buf = np.zeros((numba.get_num_threads(), st.order.shape[0], 6 + n_ch))
+        pair_grad = np.zeros((st.ids.shape[0], 6 + n_ch), np.float32)
         with numba.parallel_chunksize(TILE_CHUNK):
             _composite_bwd(st.offsets, st.ids, st.rec, st.packed_feats, W, H, st.tile_size, st.tiles_x, st.out_t,
-                           st.out_last, g_feat_np, g_t_np, grad_buf)
+                           st.out_last, g_feat_np, g_t_np, pair_grad)
         gsum = np.zeros((n, 6 + n_ch))
-        gsum[st.order] = grad_buf.sum(axis=0)
+        gsum[st.order] = _reduce_pairs(st.ids, pair_grad, st.order.shape[0])
         v_means2d = gsum[:, 0:2].astype(np.float32)
         v_conics = gsum[:, 2:5].astype(np.float32)
         v_opac = gsum[:, 5].astype(np.float32)
