@@ -97,6 +97,13 @@ def test_views_follow_the_trajectory_with_iters_per_view(tiny, vgg):
     positions = [s.step()["trajectory_position"] for _ in range(6)]
     assert positions == [0, 0, 1, 1, 2, 2]
     assert s.trajectory[1].is_virtual and s.trajectory[2].source_index == 1
+    # The content of a virtual view is the model rendered before stylization, not the current colours.
+    assert s._position == 3 and s.trajectory[3].is_virtual
+    content = s.content_features()
+    with torch.no_grad():
+        expected = s.features(s.render(s.trajectory[3].camera, sh=s._initial_sh)[0].clamp(0, 1))
+        current = s.features(s.render(s.trajectory[3].camera)[0].clamp(0, 1))
+    assert torch.allclose(content, expected) and not torch.allclose(content, current)
 
 
 def test_config_changes_take_effect_on_the_next_step(tiny, vgg):
