@@ -34,6 +34,7 @@ def register(sub: argparse._SubParsersAction) -> None:
 def run(args: argparse.Namespace) -> int:
     from app.cli import main as cli
     from training.demo_assets import demo_assets
+    from training.style_image import load_style_image
 
     out = Path(args.output)
     if args.assets_only:
@@ -45,6 +46,8 @@ def run(args: argparse.Namespace) -> int:
         assets = demo_assets(progress=True)
     data = Path(args.data) if args.data else assets.scene_dir
     style = Path(args.style) if args.style else assets.style_image
+    if args.style:
+        load_style_image(style)  # a bad painting should stop the demo before minutes of reconstruction
     print(f"scene: {data}\nstyle: {style}")
 
     flags = ["--debug"] if getattr(args, "debug", False) else []
