@@ -1,6 +1,7 @@
 """`splatstyler demo` end to end, as a user runs it: generated scene and painting, reconstruct, stylize, export.
 
-Iteration counts are cut to the bone so that CI stays fast; what is checked is that every stage runs through the
+Iteration counts are cut down so that CI stays fast (300 reconstruction steps: fewer squeeze the stretched
+densification schedule so much that its last opacity reset leaves no time to recover); what is checked is that every stage runs through the
 real console entry point and leaves consistent outputs behind."""
 
 import json
@@ -18,13 +19,13 @@ from training.splat_export import read_splat
 def test_demo_runs_end_to_end(tmp_path):
     out = tmp_path / "demo"
     proc = subprocess.run(
-        [sys.executable, "-m", "app", "demo", "-o", str(out), "--recon-iters", "40", "--iters-per-view", "1"],
+        [sys.executable, "-m", "app", "demo", "-o", str(out), "--recon-iters", "300", "--iters-per-view", "1"],
         capture_output=True, text=True, timeout=1200,
     )
     assert proc.returncode == 0, proc.stderr[-3000:]
 
     recon = json.loads((out / "reconstruction" / "report.json").read_text())
-    assert recon["iterations"] == 40
+    assert recon["iterations"] == 300
     assert np.isfinite(recon["test_psnr"]) and recon["test_psnr"] > recon["initial_psnr"]
 
     styled = json.loads((out / "stylized" / "report.json").read_text())
