@@ -9,7 +9,7 @@ import numpy as np
 import torch
 
 from training.gaussians import Gaussians
-from training.scene import Camera, Scene
+from training.scene import Camera, Scene, over_background
 from training.ssim import ssim
 
 __all__ = ["psnr", "ssim", "render_view", "evaluate_views", "constant_color_psnr"]
@@ -63,14 +63,16 @@ def evaluate_views(
     background: torch.Tensor | None = None,
     backend: str = "auto",
 ) -> dict:
-    """Mean PSNR and SSIM of the renders of ``gaussians`` against ``scene.images`` at ``indices``.
+    """Mean PSNR and SSIM of the renders of ``gaussians`` against ``scene.images`` at ``indices`` (images with
+    alpha composited over the same ``background`` as the renders).
 
     Returns {"psnr": float | None, "ssim": float | None, "views": int}; None when ``indices`` is empty."""
     psnrs, ssims = [], []
     for i in indices:
         image, _, _ = render_view(gaussians, scene.cameras[i], sh_degree=sh_degree, background=background,
                                   backend=backend)
-        target = torch.as_tensor(scene.images[i], device=image.device)
+        mask = None if scene.masks[i] is None else torch.as_tensor(scene.masks[i], device=image.device)
+        target = over_background(torch.as_tensor(scene.images[i], device=image.device), mask, background)
         image = image.clamp(0.0, 1.0)
         psnrs.append(psnr(image, target))
         ssims.append(float(ssim(image, target)))

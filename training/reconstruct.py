@@ -32,8 +32,9 @@ import torch
 from training.densify import PARAM_NAMES, DensifyConfig, DensifyStrategy
 from training.gaussians import Gaussians
 from training.metrics import evaluate_views, psnr, render_view
+from training.rasterize import resolve_device
 from training.regularizers import depth_loss, depth_weight, shape_loss, size_loss
-from training.scene import Scene
+from training.scene import Scene, over_background
 from training.ssim import ssim
 
 PRESETS = ("quick", "standard", "paper")
@@ -117,11 +118,6 @@ def means_lr(cfg: ReconstructConfig, step: int, extent: float) -> float:
     return lr * extent
 
 
-def resolve_device(name: str) -> torch.device:
-    if name == "auto":
-        return torch.device("cuda" if torch.cuda.is_available() else "cpu")
-    return torch.device(name)
-
 
 def initial_gaussians(scene: Scene, cfg: ReconstructConfig) -> tuple[Gaussians, str]:
     """SfM points when the scene has them, else random Gaussians in the view volume; and which it was."""
@@ -156,6 +152,7 @@ class Reconstructor:
             t.requires_grad_(True)
         self.device = self.gaussians.device
         self.images = [torch.as_tensor(im, device=self.device) for im in scene.images]
+        self.masks = [None if m is None else torch.as_tensor(m, device=self.device) for m in scene.masks]
         targets, self.depth_mode = compute_depth_targets(scene, config.depth, config.mono_depth_model)
         self.depth_targets: list[tuple[torch.Tensor, torch.Tensor] | None] | None = None
         if targets is not None:
@@ -225,7 +222,8 @@ class Reconstructor:
         self.active_sh_degree = min(cfg.sh_degree, self.gaussians.sh_degree, i // max(cfg.sh_interval, 1))
         view = self._next_view()
         cam = self.scene.cameras[view]
-        target = self.images[view]
+        background = self._background()
+        target = over_background(self.images[view], self.masks[view], background)
         lam_depth = depth_weight(i, cfg.iterations, cfg.lambda_depth_start, cfg.lambda_depth_end)
         depth_t = None
         if cfg.use_depth and self.depth_targets is not None and lam_depth > 0:
@@ -236,7 +234,7 @@ class Reconstructor:
 
         t0 = time.perf_counter()
         image, alpha, info = render_view(self.gaussians, cam, sh_degree=self.active_sh_degree,
-                                         background=self._background(), backend=cfg.backend,
+                                         background=background, backend=cfg.backend,
                                          render_mode="RGB+ED" if depth_t is not None else "RGB")
         t1 = time.perf_counter()
         rgb = image[..., :3]

@@ -109,3 +109,19 @@ def camera_normalization(cameras: list[Camera]) -> tuple[np.ndarray, float]:
     if radius <= 1e-9:  # a single camera, or all at one point: keep a usable unit scale
         radius = 1.0
     return center, radius
+
+
+def over_background(image, alpha, background=None):
+    """An image with coverage ``alpha`` composited over ``background`` (black when None), as 3DGS trains on RGBA
+    captures: ``image * alpha + background * (1 - alpha)``.
+
+    image (H, W, 3), alpha (H, W) or None (then the image is returned as is), background (3,) or None; numpy
+    arrays or torch tensors alike. The colour a file stores under alpha 0 is arbitrary, so it must never be a
+    training target."""
+    if alpha is None:
+        return image
+    if alpha.ndim == image.ndim - 1:
+        alpha = alpha[..., None]
+    if background is None:
+        return image * alpha
+    return image * alpha + background * (1 - alpha)
