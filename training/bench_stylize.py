@@ -36,7 +36,8 @@ def run(args: argparse.Namespace) -> list[dict]:
     from training.demo_scene import make_demo_scene
     from training.gaussian_init import gaussians_from_points
     from training.scene import Scene
-    from training.stylize import StylizeConfig, Stylizer, resolve_device
+    from training.rasterize import resolve_device
+    from training.stylize import StylizeConfig, Stylizer
     from training.vgg_features import load_vgg16_features
 
     device = resolve_device(args.device)

@@ -45,6 +45,15 @@ def _have_gsplat() -> bool:
     return True
 
 
+def resolve_device(name: str) -> torch.device:
+    """The torch device for ``name`` ("auto", "cpu", "cuda", ...). "auto" picks CUDA only where the fast CUDA
+    rasterizer (gsplat) is there too: on CUDA without gsplat only the slow torch reference could render, and the
+    numba CPU backend beats it."""
+    if name == "auto":
+        return torch.device("cuda" if torch.cuda.is_available() and _have_gsplat() else "cpu")
+    return torch.device(name)
+
+
 def choose_backend(backend: str, device: torch.device) -> str:
     """The backend ``rasterize`` will use for tensors on ``device``."""
     if backend == "auto":

@@ -29,7 +29,8 @@ from training.color_transfer import (ColorTransform, apply_to_gaussians, apply_t
                                      foreground_pixels)
 from training.errors import InputError
 from training.gaussians import Gaussians
-from training.scene import Camera, Scene
+from training.rasterize import resolve_device
+from training.scene import Camera, Scene, over_background
 from training.style_image import check_style_array, halve, style_for_render
 from training.view_order import VIEW_ORDERS, scene_kind, view_order
 from training.virtual_views import ViewItem, trajectory
@@ -93,17 +94,19 @@ class StylizeConfig:
             raise ValueError(f"unknown view order {self.view_order!r}; expected one of {', '.join(VIEW_ORDERS)}")
         if self.scene_kind not in ("auto", "forward", "360"):
             raise ValueError(f"unknown scene kind {self.scene_kind!r}; expected auto, forward or 360")
-        checks = [("k", self.k >= 1), ("epsilon", self.epsilon > 0), ("tau", self.tau > 0),
-                  ("sinkhorn_iters", self.sinkhorn_iters >= 1), ("lambda_content", self.lambda_content >= 0),
-                  ("lr", self.lr is None or self.lr > 0), ("virtual_views", self.virtual_views >= 0),
-                  ("lambda_guide", self.lambda_guide >= 0)]
-        checks += [("lambda_style", self.lambda_style is None or self.lambda_style >= 0),
-                   ("iters_per_view", self.iters_per_view is None or self.iters_per_view >= 1),
-                   ("min_total_iters", self.min_total_iters is None or self.min_total_iters >= 0),
-                   ("max_side", self.max_side is None or self.max_side >= 16)]
-        for name, ok in checks:
+        checks = [("k", self.k >= 1, "at least 1"), ("epsilon", self.epsilon > 0, "positive"),
+                  ("tau", self.tau > 0, "positive"), ("sinkhorn_iters", self.sinkhorn_iters >= 1, "at least 1"),
+                  ("lambda_content", self.lambda_content >= 0, "at least 0"),
+                  ("lr", self.lr is None or self.lr > 0, "positive"),
+                  ("virtual_views", self.virtual_views >= 0, "at least 0"),
+                  ("lambda_guide", self.lambda_guide >= 0, "at least 0"),
+                  ("lambda_style", self.lambda_style is None or self.lambda_style >= 0, "at least 0"),
+                  ("iters_per_view", self.iters_per_view is None or self.iters_per_view >= 1, "at least 1"),
+                  ("min_total_iters", self.min_total_iters is None or self.min_total_iters >= 0, "at least 0"),
+                  ("max_side", self.max_side is None or self.max_side >= 16, "at least 16")]
+        for name, ok, rule in checks:
             if not ok:
-                raise ValueError(f"invalid {name}: {getattr(self, name)!r}")
+                raise ValueError(f"{name} must be {rule}, got {getattr(self, name)!r}")
 
     @property
     def style_weight(self) -> float:
@@ -141,11 +144,6 @@ def schedule(config: StylizeConfig, kind: str, num_views: int) -> tuple[int, int
         min_total = int(config.min_total_iters)
     return per_view, min_total
 
-
-def resolve_device(name: str) -> torch.device:
-    if name == "auto":
-        return torch.device("cuda" if torch.cuda.is_available() else "cpu")
-    return torch.device(name)
 
 
 def render_camera(camera: Camera, max_side: int) -> Camera:
@@ -239,7 +237,10 @@ class Stylizer:
         self.kind = scene_kind(scene.cameras, self.config.scene_kind)
         self.order = view_order(scene.cameras, self.config.view_order, seed=self.config.seed, extent=scene.extent)
         self.trajectory: list[ViewItem] = trajectory(self.cameras, self.order, self.config.virtual_views)
-        self.content_images = [self._resize(img, cam) for img, cam in zip(scene.images, self.cameras)]
+        # RGBA photos are compared over the same background as the renders
+        bg = np.asarray(self.config.background, dtype=np.float32)
+        self.content_images = [self._resize(over_background(img, mask, bg), cam)
+                               for img, mask, cam in zip(scene.images, scene.masks, self.cameras)]
         self.times.add("load", time.perf_counter() - t0)
 
         t0 = time.perf_counter()

@@ -62,6 +62,8 @@ def _config(args):
     cfg.use_shape = not args.no_shape
     cfg.use_size = not args.no_size
     cfg.use_depth = not args.no_depth
+    if args.no_depth:
+        cfg.depth = "none"  # no targets to compute (--depth mono would otherwise run the depth model for nothing)
     if args.backend is not None:
         cfg.backend = args.backend
     if args.background is not None:

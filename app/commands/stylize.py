@@ -61,14 +61,6 @@ def run(args: argparse.Namespace) -> int:
     from training.stylize import StylizeConfig
     from training.stylize_pipeline import stylize_to_folder
 
-    for name in ("k", "sinkhorn_iters", "iters_per_view", "virtual_views", "max_side"):
-        value = getattr(args, name)
-        if value is not None and value < (0 if name == "virtual_views" else 1):
-            raise InputError(None, f"--{name.replace('_', '-')} must be at least "
-                                   f"{0 if name == 'virtual_views' else 1}, got {value}")
-    for name in ("tau", "epsilon", "lr"):
-        if getattr(args, name) is not None and getattr(args, name) <= 0:
-            raise InputError(None, f"--{name} must be positive, got {getattr(args, name)}")
     config = StylizeConfig(
         loss=args.loss, tau=args.tau, k=args.k, epsilon=args.epsilon, lambda_guide=args.lambda_guide,
         sinkhorn_iters=args.sinkhorn_iters, lambda_style=args.lambda_style, lambda_content=args.lambda_content,
@@ -76,6 +68,11 @@ def run(args: argparse.Namespace) -> int:
         scene_kind=args.scene_kind, view_order=args.view_order, seed=args.seed, virtual_views=args.virtual_views,
         dc_only=args.dc_only, preset=args.preset, max_side=args.max_side,
         color_transfer=not args.no_color_transfer, backend=args.backend, device=args.device)
+    try:
+        config.validate()
+    except ValueError as exc:  # the config names its fields; the user typed flags
+        name, _, rest = str(exc).partition(" ")
+        raise InputError(None, f"--{name.replace('_', '-')} {rest}") from None
     t0 = time.perf_counter()
     report = stylize_to_folder(Path(args.model), Path(args.data), Path(args.style), Path(args.output), config,
                                vgg_weights=args.vgg_weights, progress=True)
