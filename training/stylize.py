@@ -494,22 +494,26 @@ class Stylizer:
         self.times.add("post_color_transfer", time.perf_counter() - t0)
         return self.post_transform
 
-    def style_distance(self, sh: torch.Tensor | None = None) -> dict[str, float]:
-        """Mean over the scene's views of the Gram distance between the render's features and the painting's (both
+    def style_distance(self, sh: torch.Tensor | None = None, max_views: int | None = 8) -> dict[str, float]:
+        """Mean over the scene's views (at most ``max_views`` of them, evenly spaced: the report's figure should not
+        cost as much as the stylization itself) of the Gram distance between the render's features and the painting's (both
         prepared as for the loss): ``gram`` on the raw relu3 features, ``gram_normalised`` on features scaled to
         unit length per position (blind to overall activation strength, i.e. contrast, which cosine-based losses
         leave free). ``sh``: colours to render with (default: the current ones)."""
         from training.ccft import l2_normalise
 
         totals = {"gram": 0.0, "gram_normalised": 0.0}
+        cameras = self.cameras
+        if max_views is not None and len(cameras) > max_views:
+            cameras = [cameras[int(i)] for i in np.linspace(0, len(cameras) - 1, max_views).round()]
         with torch.no_grad():
-            for cam in self.cameras:
+            for cam in cameras:
                 image, _ = self.render(cam, sh=sh)
                 f, fs = self.features(image.clamp(0, 1)), self.style_features(cam)
                 totals["gram"] += gram_distance(f, fs)
                 unit = lambda x: l2_normalise(x[0].flatten(1).t()).t().reshape(x.shape)  # noqa: E731
                 totals["gram_normalised"] += gram_distance(unit(f), unit(fs))
-        return {k: v / len(self.cameras) for k, v in totals.items()}
+        return {k: v / len(cameras) for k, v in totals.items()}
 
     def stylized_gaussians(self) -> Gaussians:
         """The current model, detached, on the CPU."""

@@ -93,8 +93,8 @@ def stylize_to_folder(model: Path, data: Path, style: Path, out: Path, config: S
         "vgg_weights": str(getattr(stylizer.vgg, "weights_source", "given")),
         "losses": {"first": first, "last": last, "history": stylizer.history},
         "style_distance": {
-            "metric": "Gram distance of VGG relu3 features to the painting, mean over views (gram: raw features; "
-                      "gram_normalised: features of unit length per position)",
+            "metric": "Gram distance of VGG relu3 features to the painting, mean over up to 8 evenly spaced views "
+                      "(gram: raw features; gram_normalised: features of unit length per position)",
             **{f"{k}_start": v for k, v in distance_start.items()},
             **{f"{k}_after_pre_color_transfer": v for k, v in distance_pre.items()},
             **{f"{k}_end": v for k, v in distance_end.items()},
