@@ -246,12 +246,16 @@ def test_cli_writes_ply_renders_and_report(tmp_path, tiny, vgg, capsys):
     style = tmp_path / "style.png"
     write_image(style, style_image())
     out = tmp_path / "out"
+    (out / "renders").mkdir(parents=True)
+    (out / "renders" / "007_view_from_an_earlier_run.png").write_bytes(b"old")  # a run with more views
+    (out / "renders" / "notes.txt").write_text("the user's own file")
     args = [str(tmp_path / "model.ply"), "--data", str(data), "--style", str(style), "-o", str(out),
             "--preset", "quick", "--max-side", "64", "--iters-per-view", "1", "--backend", BACKEND]
     assert main(["stylize", *args]) == 0
     report = json.loads((out / "report.json").read_text())
     assert report["iterations"] == 4 and report["num_views"] == 4
-    assert len(list((out / "renders").glob("*.png"))) == 4
+    assert len(list((out / "renders").glob("*.png"))) == 4  # this run's views only
+    assert (out / "renders" / "notes.txt").exists()
     assert 0 < report["utilisation"]["utilisation"] <= 1 and report["utilisation"]["column_entropy"] > 0
     assert {"rasterize", "vgg_forward", "backward", "sinkhorn"} <= {k.split("/")[-1] for k in report["time_s"]}
     assert report["style_distance"]["gram_end"] > 0

@@ -75,6 +75,10 @@ def stylize_to_folder(model: Path, data: Path, style: Path, out: Path, config: S
         name = f"{pos:03d}_{Path(cam.name).stem}.png"
         write_image(out / "renders" / name, img)
         render_names.append(name)
+    # renders of an earlier run into the same folder (with more views) would otherwise pass for this run's
+    for stale in (out / "renders").glob("[0-9][0-9][0-9]_*.png"):
+        if stale.name not in render_names:
+            stale.unlink()
     stylizer.times.add("write_outputs", time.perf_counter() - t0)
 
     last = stylizer.history[-1] if stylizer.history else None
