@@ -76,13 +76,7 @@ def _load_colmap(path: Path, model_folder: Path, downscale: int, load_images: bo
         raise InputError(path, "COLMAP model found but no images/ folder beside it")
     images_dir = root / "images"
     sources = [images_dir / v.name for v in model.views]
-    missing = [s for s in sources if not s.is_file()]
-    if missing:
-        if len(missing) == len(sources):
-            raise InputError(images_dir, f"image names do not match the COLMAP model in {model_folder}: none of its "
-                                         f"{len(sources)} images is here (first: {model.views[0].name!r})")
-        raise InputError(missing[0], f"image named in the COLMAP model {model_folder} is missing"
-                                     + (f" (and {len(missing) - 1} more)" if len(missing) > 1 else ""))
+    _check_images_exist(sources, images_dir, f"the COLMAP model in {model_folder}", model.views[0].name)
     cache = _cache_root(root, f"images_{downscale}") / f"images_{downscale}"
     cached = [cache / v.name for v in model.views]
     return _build_scene(path, model.views, sources, cached, downscale, load_images, model.points,
@@ -95,15 +89,21 @@ def _load_transforms(json_path: Path, downscale: int, load_images: bool) -> Scen
     pairs = read_transforms(json_path)
     views = [v for v, _ in pairs]
     sources = [p for _, p in pairs]
-    missing = [s for s in sources if not s.is_file()]
-    if missing:
-        if len(missing) == len(sources):
-            raise InputError(json_path, f"image names do not match the files: none of the {len(sources)} frames' "
-                                        f"images exists (first: {str(sources[0])!r})")
-        raise InputError(missing[0], f"image named in {json_path.name} is missing"
-                                     + (f" (and {len(missing) - 1} more)" if len(missing) > 1 else ""))
+    _check_images_exist(sources, json_path, json_path.name, str(sources[0]))
     cached = [_cached_path(json_path.parent, s, downscale) for s in sources]
     return _build_scene(json_path, views, sources, cached, downscale, load_images, None, None)
+
+
+def _check_images_exist(sources: list[Path], where: Path, described_in: str, first_name: str) -> None:
+    """Name the first missing image; when none exists at all, the names and the files simply do not match."""
+    missing = [s for s in sources if not s.is_file()]
+    if not missing:
+        return
+    if len(missing) == len(sources):
+        raise InputError(where, f"image names do not match {described_in}: none of its {len(sources)} images is "
+                                f"here (first: {first_name!r})")
+    raise InputError(missing[0], f"image named in {described_in} is missing"
+                                 + (f" (and {len(missing) - 1} more)" if len(missing) > 1 else ""))
 
 
 def _cached_path(root: Path, source: Path, downscale: int) -> Path:
