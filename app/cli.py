@@ -47,7 +47,7 @@ def main(argv: list[str] | None = None) -> int:
     if not getattr(args, "func", None):
         parser.print_help()
         return 2
-    from training.errors import InputError
+    from training.core.errors import InputError
 
     try:
         return int(args.func(args) or 0)

@@ -12,7 +12,7 @@ import numpy as np
 import torch
 from scipy.spatial.transform import Rotation
 
-from training.sh import sh_to_rgb
+from training.model.sh import sh_to_rgb
 
 
 def bruteforce_render(

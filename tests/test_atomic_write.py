@@ -3,7 +3,7 @@ import stat
 
 import pytest
 
-from training.atomic_write import atomic_open
+from training.core.atomic_write import atomic_open
 
 
 def test_output_appears_only_when_complete(tmp_path):

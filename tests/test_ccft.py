@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 import torch
 
-from training.ccft import ccft_loss, gathered_row_dot, l2_normalise, transport_cost
+from training.stylize.ccft import ccft_loss, gathered_row_dot, l2_normalise, transport_cost
 
 ot = pytest.importorskip("ot", reason="POT is the reference for the transport plan (pip install POT)")
 
@@ -128,8 +128,8 @@ def test_compiled_kernel_falls_back_to_log_domain_beyond_float64():
     cost = torch.stack([0.05 * torch.rand(n, generator=g, dtype=torch.float64),
                         1.95 + 0.05 * torch.rand(n, generator=g, dtype=torch.float64)], dim=1)
     reachable = torch.ones(m, dtype=torch.bool)
-    from training.sinkhorn_cpu import sinkhorn_plan_cpu
-    from training.ccft import semi_balanced_sinkhorn
+    from training.stylize.sinkhorn_cpu import sinkhorn_plan_cpu
+    from training.stylize.ccft import semi_balanced_sinkhorn
 
     assert sinkhorn_plan_cpu(cost.numpy(), indices.numpy(), torch.full((m,), 1 / m, dtype=torch.float64).numpy(),
                              reachable.numpy(), 0.5 / 0.501, 0.001, 20) is None

@@ -11,11 +11,11 @@ import pytest
 from scipy.ndimage import gaussian_filter
 from scipy.spatial.transform import Rotation
 
-from training.colmap_io import read_colmap_model, write_colmap_model
-from training.errors import InputError
-from training.image_io import write_image
-from training.scene import Camera
-from training.scene_loader import load_scene
+from training.scene.colmap_io import read_colmap_model, write_colmap_model
+from training.core.errors import InputError
+from training.scene.image_io import write_image
+from training.scene.scene import Camera
+from training.scene.loader import load_scene
 
 
 def _cameras(n=5, seed=0) -> list[Camera]:

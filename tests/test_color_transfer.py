@@ -6,10 +6,10 @@ import numpy as np
 import pytest
 import torch
 
-from training.color_transfer import (ColorTransform, apply_to_colors, apply_to_gaussians, apply_to_image,
+from training.stylize.color_transfer import (ColorTransform, apply_to_colors, apply_to_gaussians, apply_to_image,
                                      colour_stats, fit_color_transfer, foreground_pixels)
-from training.gaussians import Gaussians
-from training.rasterize import rasterize
+from training.model.gaussians import Gaussians
+from training.raster.rasterize import rasterize
 from tests.test_view_order import look_at
 
 

@@ -10,13 +10,13 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from training import demo_assets as demo_assets_module
-from training.demo_assets import MANIFEST, DemoAssets, demo_assets
-from training.demo_scene import DemoWorld, demo_cameras, make_demo_scene, write_demo_scene
-from training.demo_style import make_style_image
-from training.errors import InputError
-from training.image_io import read_image
-from training.scene_loader import load_scene
+import assets.demo.assets as demo_assets_module
+from assets.demo.assets import MANIFEST, DemoAssets, demo_assets
+from assets.demo.scene import DemoWorld, demo_cameras, make_demo_scene, write_demo_scene
+from assets.demo.painting import make_style_image
+from training.core.errors import InputError
+from training.scene.image_io import read_image
+from training.scene.loader import load_scene
 
 # Fewer views than the demo but its image size: the texture scale relative to the pixels is what ships.
 SMALL = {"num_views": 6, "width": 256, "height": 192, "num_points": 1500, "seed": 0, "supersample": 2}
@@ -234,10 +234,10 @@ def test_default_location_is_the_cache(tmp_path, tiny_params, monkeypatch):
 def test_sfm_registers_the_demo_views(tmp_path):
     """The texture is SfM-friendly: pycolmap registers 10 demo views and recovers the known camera path."""
     try:
-        from training.sfm import run_sfm
+        from training.scene.sfm import run_sfm
     except ImportError as exc:
-        pytest.skip(f"training.sfm is not available: {exc}")
-    from training.image_io import write_image
+        pytest.skip(f"training.scene.sfm is not available: {exc}")
+    from training.scene.image_io import write_image
 
     world = DemoWorld(0)
     cameras = demo_cameras(32, 256, 192)[1::3]  # 11 views spread along the whole arc

@@ -11,8 +11,8 @@ import sys
 import numpy as np
 import pytest
 
-from training.ply_io import read_ply
-from training.splat_export import read_splat
+from training.model.ply_io import read_ply
+from training.model.splat_io import read_splat
 
 
 @pytest.mark.slow

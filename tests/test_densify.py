@@ -2,8 +2,8 @@
 
 import torch
 
-from training.densify import PARAM_NAMES, DensifyConfig, DensifyStrategy
-from training.gaussians import Gaussians
+from training.reconstruct.densify import PARAM_NAMES, DensifyConfig, DensifyStrategy
+from training.model.gaussians import Gaussians
 
 W = H = 100
 HIGH = 0.001 / (0.5 * W)  # a pixel-space gradient whose NDC-scaled norm (0.001) exceeds the 0.0002 threshold

@@ -3,10 +3,10 @@
 import numpy as np
 import pytest
 
-from training.depth_targets import (DepthTarget, align_inverse_depth, compute_depth_targets, project_points,
+from training.reconstruct.depth_targets import (DepthTarget, align_inverse_depth, compute_depth_targets, project_points,
                                     sparse_depth)
-from training.errors import InputError
-from training.scene import Camera, Scene
+from training.core.errors import InputError
+from training.scene.scene import Camera, Scene
 
 
 def _camera(w=4, h=4, f=10.0, c=2.0):

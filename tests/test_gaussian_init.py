@@ -9,11 +9,11 @@ import numpy as np
 import pytest
 import torch
 
-from training.errors import InputError
-from training.gaussian_init import (INITIAL_OPACITY, MIN_SCALE_RELATIVE, RANDOM_NEAR, gaussians_from_points,
+from training.core.errors import InputError
+from training.model.gaussian_init import (INITIAL_OPACITY, MIN_SCALE_RELATIVE, RANDOM_NEAR, gaussians_from_points,
                                     gaussians_random, random_view_points)
-from training.gaussians import sh0_to_rgb
-from training.scene import Camera, Scene
+from training.model.gaussians import sh0_to_rgb
+from training.scene.scene import Camera, Scene
 
 
 def brute_force_rms_3nn(points: np.ndarray) -> np.ndarray:
@@ -162,7 +162,7 @@ def test_random_init_on_fox_lands_in_its_training_views():
     fox = Path(__file__).resolve().parents[1].parent / "shared" / "data" / "scenes" / "fox"
     if not fox.exists():
         pytest.skip(f"shared data not found at {fox}")
-    from training.scene_loader import load_scene
+    from training.scene.loader import load_scene
 
     scene = load_scene(fox, load_images=False)
     g = gaussians_random(scene, 3000, sh_degree=3, seed=0)

@@ -8,8 +8,8 @@ import numpy as np
 import OpenImageIO as oiio
 import pytest
 
-from training.errors import InputError
-from training.image_io import image_size, read_header, read_image, read_image_with_alpha, write_image
+from training.core.errors import InputError
+from training.scene.image_io import image_size, read_header, read_image, read_image_with_alpha, write_image
 
 SHARED = Path(__file__).resolve().parents[1].parent / "shared"
 FOX_IMAGE = SHARED / "data" / "scenes" / "fox" / "images" / "0001.jpg"

@@ -12,9 +12,9 @@ import pytest
 import torch
 
 from app.cli import main
-from training.gaussians import Gaussians
-from training.ply_io import read_ply, write_ply
-from training.splat_export import read_splat, splat_records
+from training.model.gaussians import Gaussians
+from training.model.ply_io import read_ply, write_ply
+from training.model.splat_io import read_splat, splat_records
 
 SHARED = Path(__file__).resolve().parents[1].parent / "shared"
 FOX = SHARED / "data" / "scenes" / "fox"
@@ -158,10 +158,10 @@ def test_console_command_exit_code_and_no_traceback(tmp_path):
 
 def test_info_json_on_colmap_scene_with_points(tmp_path, capsys):
     from tests.test_gaussian_init import ring_scene
-    from training.colmap_io import write_colmap_model
-    from training.gaussian_init import gaussians_from_points
-    from training.image_io import write_image
-    from training.scene_loader import load_scene
+    from training.scene.colmap_io import write_colmap_model
+    from training.model.gaussian_init import gaussians_from_points
+    from training.scene.image_io import write_image
+    from training.scene.loader import load_scene
 
     scene = ring_scene(10)
     rng = np.random.default_rng(0)

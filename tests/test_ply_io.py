@@ -8,9 +8,9 @@ import plyfile
 import pytest
 import torch
 
-from training.errors import InputError
-from training.gaussians import Gaussians, num_sh_coeffs
-from training.ply_io import STANDARD_ATTRIBUTES, read_ply, write_ply
+from training.core.errors import InputError
+from training.model.gaussians import Gaussians, num_sh_coeffs
+from training.model.ply_io import STANDARD_ATTRIBUTES, read_ply, write_ply
 
 
 def random_gaussians(n: int, degree: int, seed: int = 0) -> Gaussians:

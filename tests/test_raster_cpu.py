@@ -9,7 +9,7 @@ import torch
 
 from tests.raster_bruteforce import bruteforce_render, check_close
 from tests.raster_scenes import fresh_seed, random_scene
-from training.rasterize import choose_backend, rasterize
+from training.raster.rasterize import choose_backend, rasterize
 
 INPUTS = ["means", "quats", "scales", "opacities", "colors"]
 
@@ -155,7 +155,7 @@ def test_backend_choice(monkeypatch):
 
 
 def test_depth_order_is_a_stable_argsort():
-    from training.raster_cpu import depth_order
+    from training.raster.cpu import depth_order
 
     seed = fresh_seed("depth-order")
     rng = np.random.default_rng(seed)

@@ -6,7 +6,7 @@ import pytest
 import torch
 
 from tests.raster_scenes import fresh_seed, random_scene
-from training.rasterize import rasterize
+from training.raster.rasterize import rasterize
 
 gsplat = pytest.importorskip("gsplat", reason="the cuda backend needs gsplat")
 pytestmark = pytest.mark.skipif(not torch.cuda.is_available(), reason="the cuda backend needs a CUDA GPU")

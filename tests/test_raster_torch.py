@@ -8,7 +8,7 @@ import torch
 
 from tests.raster_bruteforce import bruteforce_render, check_close
 from tests.raster_scenes import fresh_seed, random_scene
-from training.rasterize import rasterize
+from training.raster.rasterize import rasterize
 
 
 

@@ -6,14 +6,14 @@ import warnings
 import pytest
 import torch
 
-from training.checkpoint import load_checkpoint, save_checkpoint
-from training.demo_scene import make_demo_scene
-from training.densify import DensifyConfig
-from training.metrics import constant_color_psnr
-from training.ply_io import read_ply, write_ply
-from training.reconstruct import ReconstructConfig, Reconstructor
-from training.regularizers import scale_stats
-from training.scene import Scene
+from training.reconstruct.checkpoint import load_checkpoint, save_checkpoint
+from assets.demo.scene import make_demo_scene
+from training.reconstruct.densify import DensifyConfig
+from training.reconstruct.metrics import constant_color_psnr
+from training.model.ply_io import read_ply, write_ply
+from training.reconstruct.trainer import ReconstructConfig, Reconstructor
+from training.reconstruct.regularizers import scale_stats
+from training.scene.scene import Scene
 
 
 @pytest.fixture(scope="module")

@@ -7,8 +7,8 @@ import pytest
 import torch
 
 from app.cli import main
-from training.demo_scene import make_demo_scene, write_demo_scene
-from training.ply_io import read_ply
+from assets.demo.scene import make_demo_scene, write_demo_scene
+from training.model.ply_io import read_ply
 
 REPORT_KEYS = {"train_psnr", "test_psnr", "test_ssim", "num_gaussians", "aniso_p95", "smax_p95", "seconds",
                "settings"}
@@ -22,8 +22,8 @@ def demo_folder(tmp_path_factory):
 
 @pytest.fixture(scope="module")
 def no_points_folder(tmp_path_factory):
-    from training.colmap_io import write_colmap_model
-    from training.image_io import write_image
+    from training.scene.colmap_io import write_colmap_model
+    from training.scene.image_io import write_image
 
     d = make_demo_scene(num_views=9, width=48, height=36, num_points=10)
     folder = tmp_path_factory.mktemp("nopts") / "scene"
@@ -63,8 +63,8 @@ def test_cli_writes_ply_report_and_resumes(demo_folder, tmp_path, capsys):
 
 @pytest.mark.slow
 def test_ctrl_c_saves_a_checkpoint_and_exits_130(demo_folder, tmp_path, capsys, monkeypatch):
-    from training.checkpoint import load_checkpoint
-    from training.reconstruct import Reconstructor
+    from training.reconstruct.checkpoint import load_checkpoint
+    from training.reconstruct.trainer import Reconstructor
 
     real_step = Reconstructor.step
 

@@ -4,7 +4,7 @@ import math
 
 import torch
 
-from training.regularizers import depth_loss, depth_weight, scale_stats, shape_loss, size_loss
+from training.reconstruct.regularizers import depth_loss, depth_weight, scale_stats, shape_loss, size_loss
 
 
 def test_shape_loss_values_and_gradient():

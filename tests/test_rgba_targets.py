@@ -4,10 +4,10 @@ a training or evaluation target; images are composited over the render's backgro
 import numpy as np
 import torch
 
-from training.gaussians import Gaussians
-from training.metrics import evaluate_views
-from training.reconstruct import ReconstructConfig, Reconstructor
-from training.scene import Camera, Scene, over_background
+from training.model.gaussians import Gaussians
+from training.reconstruct.metrics import evaluate_views
+from training.reconstruct.trainer import ReconstructConfig, Reconstructor
+from training.scene.scene import Camera, Scene, over_background
 
 
 def _rgba_scene() -> Scene:

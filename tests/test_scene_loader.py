@@ -10,11 +10,11 @@ import numpy as np
 import pytest
 from scipy.ndimage import gaussian_filter
 
-from training.colmap_io import write_colmap_model
-from training.errors import InputError
-from training.image_io import image_size, read_image, write_image
-from training.scene import Camera
-from training.scene_loader import load_scene
+from training.scene.colmap_io import write_colmap_model
+from training.core.errors import InputError
+from training.scene.image_io import image_size, read_image, write_image
+from training.scene.scene import Camera
+from training.scene.loader import load_scene
 
 
 @pytest.fixture(autouse=True)

@@ -9,10 +9,10 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from training.errors import InputError
-from training.image_io import read_image, resize_image, write_image
-from training.scene_loader import load_scene
-from training.sfm import EXHAUSTIVE_MAX_IMAGES, choose_matcher, run_sfm
+from training.core.errors import InputError
+from training.scene.image_io import read_image, resize_image, write_image
+from training.scene.loader import load_scene
+from training.scene.sfm import EXHAUSTIVE_MAX_IMAGES, choose_matcher, run_sfm
 
 SHARED = Path(__file__).resolve().parents[1].parent / "shared"
 FERN = SHARED / "data" / "scenes" / "llff_fern" / "images"
@@ -109,7 +109,7 @@ def test_cli_help_lists_options():
 def test_photos_are_staged_upright_and_shrunk(tmp_path):
     import OpenImageIO as oiio
 
-    from training.sfm import _stage_photos
+    from training.scene.sfm import _stage_photos
 
     rng = np.random.default_rng(0)
     rotated = rng.random((20, 40, 3)).astype(np.float32)

@@ -6,9 +6,9 @@ import numpy as np
 import pytest
 import torch
 
-from training.errors import InputError
-from training.gaussians import SH_C0, Gaussians
-from training.splat_export import read_splat, write_splat
+from training.core.errors import InputError
+from training.model.gaussians import SH_C0, Gaussians
+from training.model.splat_io import read_splat, write_splat
 
 
 def model(n=64, degree=2, seed=0) -> Gaussians:

@@ -5,8 +5,8 @@ import math
 import numpy as np
 import torch
 
-from training.metrics import psnr
-from training.ssim import ssim, ssim_map
+from training.reconstruct.metrics import psnr
+from training.reconstruct.ssim import ssim, ssim_map
 
 
 def _ssim_direct(x: np.ndarray, y: np.ndarray, size: int = 11, sigma: float = 1.5) -> np.ndarray:

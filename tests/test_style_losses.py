@@ -8,15 +8,15 @@ import pytest
 import torch
 import torch.nn.functional as F
 
-from training import vgg_weights as vw
-from training.style_losses import CCFTStyleLoss, GramStyleLoss, NNFMStyleLoss, make_style_loss
-from training.vgg_features import VGGFeatures
+import training.stylize.trainer.vgg_weights as vw
+from training.stylize.style_losses import CCFTStyleLoss, GramStyleLoss, NNFMStyleLoss, make_style_loss
+from training.stylize.vgg_features import VGGFeatures
 
 SHARED = Path(__file__).resolve().parents[1].parent / "shared"
 
 
 def _load_rgb(path: Path, long_side: int) -> torch.Tensor:
-    from training.image_io import read_image
+    from training.scene.image_io import read_image
 
     img = torch.from_numpy(read_image(path)).permute(2, 0, 1)[None]
     h, w = img.shape[2:]

@@ -8,12 +8,12 @@ import numpy as np
 import pytest
 import torch
 
-from training.demo_scene import make_demo_scene
-from training.errors import InputError
-from training.gaussian_init import gaussians_from_points
-from training.scene import Scene
-from training.style_image import MIN_STYLE_SIDE, check_style_array, load_style_image
-from training.stylize import (StylizeConfig, Stylizer, check_model_matches_scene, paper_schedule, schedule)
+from assets.demo.scene import make_demo_scene
+from training.core.errors import InputError
+from training.model.gaussian_init import gaussians_from_points
+from training.scene.scene import Scene
+from training.stylize.style_image import MIN_STYLE_SIDE, check_style_array, load_style_image
+from training.stylize.trainer import (StylizeConfig, Stylizer, check_model_matches_scene, paper_schedule, schedule)
 
 SHARED = Path(__file__).resolve().parents[1].parent / "shared"
 BACKEND = "auto"  # the product path (numba on CPU); the rasterizer tests hold it to the torch reference
@@ -21,7 +21,7 @@ BACKEND = "auto"  # the product path (numba on CPU); the rasterizer tests hold i
 
 @pytest.fixture(scope="module")
 def vgg():
-    from training.vgg_features import load_vgg16_features
+    from training.stylize.vgg_features import load_vgg16_features
 
     try:
         return load_vgg16_features()
@@ -44,7 +44,7 @@ def style_image() -> np.ndarray:
     path = SHARED / "data" / "styles" / "starry_night.jpg"
     if path.exists():
         return load_style_image(path)
-    from training.demo_style import make_style_image
+    from assets.demo.painting import make_style_image
 
     return np.asarray(make_style_image(size=256, seed=0), dtype=np.float32)
 
@@ -137,11 +137,11 @@ def test_post_colour_transfer_refits_from_the_renders(tiny, vgg):
     t = s.post_transform
     assert t is not None
     # The map was fitted on the renders' covered pixels, and applied to the SH as an affine map of the DC colour.
-    from training.color_transfer import fit_color_transfer, foreground_pixels
+    from training.stylize.color_transfer import fit_color_transfer, foreground_pixels
 
     refit = fit_color_transfer([foreground_pixels(img, a) for img, a in renders], style_image().reshape(-1, 3))
     assert np.allclose(refit.A, t.A, atol=1e-6) and np.allclose(refit.b, t.b, atol=1e-6)
-    from training.gaussians import sh0_to_rgb
+    from training.model.gaussians import sh0_to_rgb
 
     rgb_before = sh0_to_rgb(before.sh0[:, 0]).double().numpy()
     rgb_after = sh0_to_rgb(s.gaussians.sh0[:, 0]).double().numpy()
@@ -164,7 +164,7 @@ def test_model_from_another_place_is_refused(tiny, vgg):
 
 
 def write(path: Path, array: np.ndarray, dtype: str) -> Path:
-    from training.image_io import write_image
+    from training.scene.image_io import write_image
 
     write_image(path, array, dtype=dtype)
     return path
@@ -198,7 +198,7 @@ def test_bad_style_images(tmp_path):
 
 def close_views_scene(num_views: int, width: int, height: int, arc_degrees: float, num_points: int):
     """Demo scene views on a short arc (neighbouring views overlap, as in a real capture) and its Gaussians."""
-    from training.demo_scene import DemoWorld, demo_cameras, demo_points
+    from assets.demo.scene import DemoWorld, demo_cameras, demo_points
 
     world = DemoWorld(0)
     cams = demo_cameras(num_views, width, height, arc_degrees=arc_degrees)
@@ -235,9 +235,9 @@ def test_cli_writes_ply_renders_and_report(tmp_path, tiny, vgg, capsys):
     import json
 
     from app.cli import main
-    from training.demo_scene import DemoScene, write_demo_scene
-    from training.image_io import write_image
-    from training.ply_io import read_ply, write_ply
+    from assets.demo.scene import DemoScene, write_demo_scene
+    from training.scene.image_io import write_image
+    from training.model.ply_io import read_ply, write_ply
 
     scene, g = tiny
     data = write_demo_scene(tmp_path / "scene", DemoScene(scene.cameras, scene.images, scene.points,
@@ -278,7 +278,7 @@ def test_cli_writes_ply_renders_and_report(tmp_path, tiny, vgg, capsys):
 def test_bench_stylize_reports_iterations_per_second_and_stages(vgg):
     import argparse
 
-    from training import bench_stylize
+    import app.bench.stylize as bench_stylize
 
     parser = argparse.ArgumentParser()
     bench_stylize.add_arguments(parser)

@@ -12,10 +12,10 @@ import pycolmap
 import pytest
 from scipy.ndimage import gaussian_filter
 
-from training.errors import InputError
-from training.image_io import write_image
-from training.scene_loader import load_scene
-from training.transforms_io import opengl_c2w_to_opencv_w2c
+from training.core.errors import InputError
+from training.scene.image_io import write_image
+from training.scene.loader import load_scene
+from training.scene.transforms_io import opengl_c2w_to_opencv_w2c
 
 SHARED = Path(__file__).resolve().parents[1].parent / "shared"
 FOX = SHARED / "data" / "scenes" / "fox"
@@ -123,7 +123,7 @@ def test_distortion_is_removed_like_pycolmap(tmp_path):
 
 
 def _read(path):
-    from training.image_io import read_image
+    from training.scene.image_io import read_image
 
     return read_image(path)
 

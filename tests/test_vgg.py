@@ -17,9 +17,9 @@ import pytest
 import torch
 import torch.nn.functional as F
 
-from training import vgg_weights as vw
-from training.errors import InputError
-from training.vgg_features import VGGFeatures, load_vgg16_features
+import training.stylize.trainer.vgg_weights as vw
+from training.core.errors import InputError
+from training.stylize.vgg_features import VGGFeatures, load_vgg16_features
 
 SHARED = Path(__file__).resolve().parents[1].parent / "shared"
 
@@ -109,8 +109,8 @@ def test_every_route_failing_says_how_to_provide_weights(tmp_path):
     env = dict(os.environ, TORCH_HOME=str(tmp_path / "torch"), SPLATSTYLER_CACHE=str(tmp_path / "cache"),
                PIP_INDEX_URL="http://127.0.0.1:9/simple", PIP_RETRIES="0", PIP_NO_CACHE_DIR="1")
     env.pop(vw.ENV_VAR, None)
-    code = ("from training.vgg_weights import resolve_vgg_weights\n"
-            "from training.errors import InputError\n"
+    code = ("from training.stylize.vgg_weights import resolve_vgg_weights\n"
+            "from training.core.errors import InputError\n"
             "try:\n    resolve_vgg_weights()\nexcept InputError as e:\n    print('INPUTERROR', e)\n")
     proc = subprocess.run([sys.executable, "-c", code], env=env, capture_output=True, text=True, timeout=300)
     assert "INPUTERROR" in proc.stdout, proc.stderr
@@ -154,7 +154,7 @@ def test_restricted_unpickler_loads_arrays_and_refuses_code(tmp_path):
 
 
 def _load_rgb(path: Path, long_side: int) -> torch.Tensor:
-    from training.image_io import read_image
+    from training.scene.image_io import read_image
 
     img = torch.from_numpy(read_image(path)).permute(2, 0, 1)[None]
     h, w = img.shape[2:]

@@ -7,10 +7,10 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from training.scene import Camera
-from training.view_order import (camera_distance_matrix, greedy_path, nearest_order, path_length, random_order,
+from training.scene.scene import Camera
+from training.stylize.view_order import (camera_distance_matrix, greedy_path, nearest_order, path_length, random_order,
                                  scene_kind, two_opt, view_order)
-from training.virtual_views import interpolate_camera, quat_to_rotation, rotation_to_quat, slerp, trajectory
+from training.stylize.virtual_views import interpolate_camera, quat_to_rotation, rotation_to_quat, slerp, trajectory
 
 SHARED = Path(__file__).resolve().parents[1].parent / "shared"
 
@@ -112,7 +112,7 @@ def test_scene_kind_forward_facing_layout():
 
 
 def fox_cameras() -> list[Camera]:
-    from training.scene_loader import load_scene
+    from training.scene.loader import load_scene
 
     path = SHARED / "data" / "scenes" / "fox"
     if not path.exists():

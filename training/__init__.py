@@ -1,3 +1,14 @@
+"""The engine: everything torch. Packages by role, bottom to top (a package imports only those below it):
+
+- ``core``: input errors, atomic writes, cache folder, trainer messages (events, snapshots, config updates);
+- ``scene``: cameras, scenes and their loaders (COLMAP, transforms.json, images, undistortion, SfM);
+- ``model``: the Gaussian model, SH, initialisation, PLY and .splat files;
+- ``raster``: ``rasterize()`` over the cpu (numba), cuda (gsplat) and reference (torch) backends;
+- ``reconstruct`` and ``stylize``: the two trainers (a dataclass config plus ``step()``) and what only they use.
+
+Nothing here imports ``app`` or ``renderer_gl``, nor any GL or window code.
+"""
+
 import os
 
 # Before torch (or numba's OpenMP pool) loads libgomp: idle OpenMP threads sleep instead of spinning. On the 2-core

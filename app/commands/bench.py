@@ -1,6 +1,6 @@
 """``splatstyler bench NAME``: speed and memory benchmarks, each against a reference measured in the same run.
 
-Each benchmark lives in ``training/bench_<name>.py`` (or another module listed in BENCHES) and exposes
+Each benchmark lives in ``app/bench/<name>.py`` (listed in BENCHES) and exposes
 ``add_arguments(parser)`` and ``run(args) -> list[dict]``. This command prints the rows as a table, or with
 ``--json`` one JSON object per line.
 """
@@ -13,10 +13,10 @@ import json
 
 # name -> (module, one-line help)
 BENCHES: dict[str, tuple[str, str]] = {
-    "reconstruct": ("training.bench_reconstruct", "iterations/s of the quick reconstruction preset, per phase"),
-    "raster": ("training.bench_raster", "rasterizer forward/backward time and peak memory per backend vs the torch reference"),
-    "ccft": ("training.bench_ccft", "CCFT loss time and peak memory for n, m in {1k, 4k, 16k} against dense POT"),
-    "stylize": ("training.bench_stylize", "stylization iterations/s with a per-stage breakdown (rasterize, VGG, top-K, Sinkhorn, backward)"),
+    "reconstruct": ("app.bench.reconstruct", "iterations/s of the quick reconstruction preset, per phase"),
+    "raster": ("app.bench.raster", "rasterizer forward/backward time and peak memory per backend vs the torch reference"),
+    "ccft": ("app.bench.ccft", "CCFT loss time and peak memory for n, m in {1k, 4k, 16k} against dense POT"),
+    "stylize": ("app.bench.stylize", "stylization iterations/s with a per-stage breakdown (rasterize, VGG, top-K, Sinkhorn, backward)"),
 }
 
 

@@ -29,7 +29,7 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 def lower_sh_degree(gaussians, degree: int):
     """The same model keeping SH coefficients up to ``degree`` (<= gaussians.sh_degree)."""
-    from training.gaussians import Gaussians, num_sh_coeffs
+    from training.model.gaussians import Gaussians, num_sh_coeffs
 
     if degree > gaussians.sh_degree:
         raise ValueError(f"cannot raise SH degree {gaussians.sh_degree} to {degree}")
@@ -40,7 +40,7 @@ def lower_sh_degree(gaussians, degree: int):
 
 def run(args: argparse.Namespace) -> int:
     from app.commands.info import detect_kind
-    from training.errors import InputError
+    from training.core.errors import InputError
 
     out_fmt = args.output.suffix.lower()
     if out_fmt not in OUTPUT_FORMATS:
@@ -49,11 +49,11 @@ def run(args: argparse.Namespace) -> int:
         raise InputError(args.output, "is a folder; give an output file name ending in .splat or .ply")
     kind = detect_kind(args.input)
     if kind == "ply":
-        from training.ply_io import read_ply
+        from training.model.ply_io import read_ply
 
         g = read_ply(args.input)
     elif kind == "splat":
-        from training.splat_export import read_splat
+        from training.model.splat_io import read_splat
 
         g = read_splat(args.input)
     else:
@@ -68,11 +68,11 @@ def run(args: argparse.Namespace) -> int:
         g = lower_sh_degree(g, args.sh_degree)
 
     if out_fmt == ".splat":
-        from training.splat_export import write_splat
+        from training.model.splat_io import write_splat
 
         write_splat(args.output, g)
     else:
-        from training.ply_io import write_ply
+        from training.model.ply_io import write_ply
 
         write_ply(args.output, g)
     print(f"wrote {args.output} ({len(g)} Gaussians, "

@@ -31,7 +31,7 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 def detect_kind(path: Path) -> str:
     """"ply" for a file that starts like a PLY, "splat" for a *.splat file, "scene" for anything else."""
-    from training.errors import InputError
+    from training.core.errors import InputError
 
     if not path.exists():
         raise InputError(path, "does not exist")
@@ -42,14 +42,14 @@ def detect_kind(path: Path) -> str:
         if path.suffix.lower() == ".splat":
             return "splat"
         if path.suffix.lower() == ".ply":
-            from training.ply_io import read_ply
+            from training.model.ply_io import read_ply
 
             read_ply(path)  # raises the precise "not a PLY file" error
     return "scene"
 
 
 def run(args: argparse.Namespace) -> int:
-    from training.errors import InputError
+    from training.core.errors import InputError
 
     if args.downscale < 1:
         raise InputError(None, f"--downscale must be 1 or more, got {args.downscale}")
@@ -78,11 +78,11 @@ def gaussians_file_summary(path: Path, kind: str) -> dict:
     import torch
 
     if kind == "ply":
-        from training.ply_io import read_ply
+        from training.model.ply_io import read_ply
 
         g = read_ply(path)
     else:
-        from training.splat_export import read_splat
+        from training.model.splat_io import read_splat
 
         g = read_splat(path)
     with torch.no_grad():
@@ -109,7 +109,7 @@ def scene_summary(path: Path, downscale: int = 1) -> dict:
     """Summary of a scene as the loader sees it (images not decoded)."""
     import numpy as np
 
-    from training.scene_loader import load_scene
+    from training.scene.loader import load_scene
 
     scene = load_scene(path, downscale=downscale, load_images=False)
     sizes: dict[tuple[int, int], int] = {}

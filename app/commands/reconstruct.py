@@ -49,7 +49,7 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 
 def _config(args):
-    from training.reconstruct import ReconstructConfig
+    from training.reconstruct.trainer import ReconstructConfig
 
     cfg = ReconstructConfig.from_preset(args.preset)
     if args.iters is not None:
@@ -98,14 +98,14 @@ def run(args) -> int:
     import json
     import time
 
-    from training.checkpoint import CHECKPOINT_NAME, load_checkpoint, save_checkpoint
-    from training.errors import InputError
-    from training.ply_io import write_ply
-    from training.reconstruct import ReconstructConfig, Reconstructor
-    from training.regularizers import scale_stats
-    from training.scene_loader import load_scene
-    from training.atomic_write import atomic_open
-    from training.metrics import constant_color_psnr
+    from training.reconstruct.checkpoint import CHECKPOINT_NAME, load_checkpoint, save_checkpoint
+    from training.core.errors import InputError
+    from training.model.ply_io import write_ply
+    from training.reconstruct.trainer import ReconstructConfig, Reconstructor
+    from training.reconstruct.regularizers import scale_stats
+    from training.scene.loader import load_scene
+    from training.core.atomic_write import atomic_open
+    from training.reconstruct.metrics import constant_color_psnr
 
     _one_line_warnings()
     out = Path(args.output)

@@ -27,7 +27,7 @@ def register(sub: argparse._SubParsersAction) -> None:
 def run(args: argparse.Namespace) -> int:
     import sys
 
-    from training.sfm import run_sfm
+    from training.scene.sfm import run_sfm
 
     result = run_sfm(args.photos, args.output, max_size=args.max_size, max_features=args.max_features,
                      matcher=args.matcher, log=lambda line: print(line, flush=True),

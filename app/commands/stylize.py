@@ -57,9 +57,9 @@ def register(sub: argparse._SubParsersAction) -> None:
 def run(args: argparse.Namespace) -> int:
     import time
 
-    from training.errors import InputError
-    from training.stylize import StylizeConfig
-    from training.stylize_pipeline import stylize_to_folder
+    from training.core.errors import InputError
+    from training.stylize.trainer import StylizeConfig
+    from training.stylize.pipeline import stylize_to_folder
 
     config = StylizeConfig(
         loss=args.loss, tau=args.tau, k=args.k, epsilon=args.epsilon, lambda_guide=args.lambda_guide,

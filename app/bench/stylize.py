@@ -1,0 +1,81 @@
+"""``splatstyler bench stylize``: stylization iterations per second, with the time of each stage of an iteration.
+
+The scene is the procedural demo scene (rendered here at the requested size, a few views) with Gaussians made from
+its surface points, and the procedural demo painting unless ``--style`` names one. Each row is one loss/backend:
+iterations per second over the timed iterations (after warm-up ones that include compilation and caches), and the
+median milliseconds of rasterize (forward), VGG forward (render, plus content/style features when a view starts),
+similarity/top-K, Sinkhorn and guide (CCFT's own breakdown, inside "loss"), backward (VGG and rasterizer) and the
+optimiser step.
+"""
+
+from __future__ import annotations
+
+import argparse
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("--losses", default="ccft,nnfm,gram", help="comma-separated losses (default: all three)")
+    parser.add_argument("--backends", default="auto", help="comma-separated rasterizer backends (default: auto)")
+    parser.add_argument("--width", type=int, default=256, help="render width (default 256)")
+    parser.add_argument("--height", type=int, default=192, help="render height (default 192)")
+    parser.add_argument("--points", type=int, default=20000, help="Gaussians (from demo surface points; 20000)")
+    parser.add_argument("--views", type=int, default=4, help="views in the trajectory (default 4)")
+    parser.add_argument("--iters", type=int, default=20, help="timed iterations per row (default 20)")
+    parser.add_argument("--warmup", type=int, default=3, help="untimed iterations first (default 3)")
+    parser.add_argument("--sh-degree", type=int, default=3, choices=(0, 1, 2, 3))
+    parser.add_argument("--style", default=None, help="style image (default: the procedural demo painting)")
+    parser.add_argument("--device", default="auto", choices=("auto", "cpu", "cuda"))
+
+
+def run(args: argparse.Namespace) -> list[dict]:
+    import statistics
+    import time
+
+    import numpy as np
+
+    from assets.demo.scene import make_demo_scene
+    from training.model.gaussian_init import gaussians_from_points
+    from training.scene.scene import Scene
+    from training.raster.rasterize import resolve_device
+    from training.stylize.trainer import StylizeConfig, Stylizer
+    from training.stylize.vgg_features import load_vgg16_features
+
+    device = resolve_device(args.device)
+    demo = make_demo_scene(num_views=args.views, width=args.width, height=args.height, num_points=args.points,
+                           supersample=1)
+    scene = Scene(cameras=demo.cameras, images=demo.images, points=demo.points, point_colors=demo.point_colors)
+    gaussians = gaussians_from_points(demo.points, demo.point_colors, sh_degree=args.sh_degree)
+    if args.style:
+        from training.stylize.style_image import load_style_image
+
+        style = load_style_image(args.style)
+    else:
+        from assets.demo.painting import make_style_image
+
+        style = np.asarray(make_style_image(size=512, seed=0), dtype=np.float32)
+    vgg = load_vgg16_features()
+    rows = []
+    for backend in [b.strip() for b in args.backends.split(",") if b.strip()]:
+        for loss in [name.strip() for name in args.losses.split(",") if name.strip()]:
+            config = StylizeConfig(loss=loss, preset="quick", max_side=max(args.width, args.height),
+                                   iters_per_view=max(1, (args.warmup + args.iters) // args.views),
+                                   backend=backend, device=str(device))
+            stylizer = Stylizer(gaussians, scene, style, config, vgg=vgg)
+            for _ in range(args.warmup):
+                stylizer.step()
+            samples: dict[str, list[float]] = {}
+            t0 = time.perf_counter()
+            for _ in range(args.iters):
+                r = stylizer.step()
+                for key, value in r["timings"].items():
+                    samples.setdefault(key, []).append(value)
+            elapsed = time.perf_counter() - t0
+            row = {"loss": loss, "backend": backend, "device": str(device), "gaussians": len(gaussians),
+                   "size": f"{args.width}x{args.height}", "it_per_s": args.iters / elapsed,
+                   "ms_per_it": 1000 * elapsed / args.iters}
+            for key in ("rasterize", "vgg_forward", "loss", "similarity_topk", "sinkhorn", "guide", "backward",
+                        "optimizer"):
+                if key in samples:
+                    row[f"{key}_ms"] = 1000 * statistics.median(samples[key])
+            rows.append(row)
+    return rows

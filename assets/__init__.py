@@ -1,0 +1,1 @@
+"""Assets that ship with the app: shaders, fonts, and the code that generates the demo scene and painting."""

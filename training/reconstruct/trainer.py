@@ -1,0 +1,356 @@
+"""The reconstruction trainer: 3DGS with the paper's depth, shape and size regularizers, one step at a time.
+
+``Reconstructor(scene, config)`` owns a Gaussian model, its Adam optimizer and a density-control strategy;
+``step()`` runs one iteration on a random training view and returns its metrics. ``config`` is read afresh at
+every step, so a caller (CLI, viewer, test) may change it between steps, e.g. switch a regularizer off.
+
+Recipe (3DGS 2023 plus the paper):
+- Adam (eps 1e-15) with per-parameter learning rates; the means' rate is scaled by the scene extent and decays
+  log-linearly from 1.6e-4 to 1.6e-6 over ``iterations``; sh0 2.5e-3, shN 2.5e-3 / 20, opacity 0.05,
+  log-scales 5e-3, quaternions 1e-3;
+- the active SH degree starts at 0 and rises by one every ``sh_interval`` steps up to ``sh_degree``;
+- L = 0.8 L1 + 0.2 (1 - SSIM) + lambda_depth L_depth + lambda_shape L_shape + lambda_size L_size
+  (see training/reconstruct/regularizers.py for the units), lambda_depth decaying from 1 to 0.01 over ``iterations``;
+- views are visited in shuffled epochs (every training view once per epoch, as 3DGS's viewpoint stack);
+- density control by training/reconstruct/densify.py after the optimizer step.
+
+Safety: a step whose loss, gradients-turned-parameters or inputs are not finite is undone: the model, optimizer and
+density statistics return to the last good snapshot (taken every ``snapshot_every`` steps), a warning is issued,
+and training continues with the next step.
+"""
+
+from __future__ import annotations
+
+import copy
+import math
+import time
+import warnings
+from dataclasses import asdict, dataclass, field, fields, replace
+
+import torch
+
+from training.reconstruct.densify import PARAM_NAMES, DensifyConfig, DensifyStrategy
+from training.model.gaussians import Gaussians
+from training.reconstruct.metrics import evaluate_views, psnr, render_view
+from training.raster.rasterize import resolve_device
+from training.reconstruct.regularizers import depth_loss, depth_weight, shape_loss, size_loss
+from training.scene.scene import Scene, over_background
+from training.reconstruct.ssim import ssim
+
+PRESETS = ("quick", "standard", "paper")
+BACKGROUNDS = ("black", "white", "random")
+MAX_CONSECUTIVE_RECOVERIES = 20
+
+
+@dataclass
+class ReconstructConfig:
+    preset: str = "standard"
+    iterations: int = 7000
+    downscale: int = 4  # used by whoever loads the scene (the CLI); the trainer takes the scene as given
+    sh_degree: int = 3
+    sh_interval: int = 1000
+    lr_means_init: float = 1.6e-4  # x scene extent
+    lr_means_final: float = 1.6e-6  # x scene extent
+    lr_sh0: float = 2.5e-3
+    lr_shN: float = 2.5e-3 / 20
+    lr_opacity: float = 0.05
+    lr_scales: float = 5e-3
+    lr_quats: float = 1e-3
+    lambda_dssim: float = 0.2
+    # the paper's regularizers
+    use_shape: bool = True
+    lambda_shape: float = 10.0
+    lambda_s: float = 3.5
+    use_size: bool = True
+    lambda_size: float = 1.0
+    beta1: float = 0.1
+    beta2: float = 0.001
+    depth: str = "sfm"  # "sfm" | "mono" | "none": where depth targets come from (fixed at construction)
+    use_depth: bool = True  # switches the depth term on and off between steps
+    lambda_depth_start: float = 1.0
+    lambda_depth_end: float = 0.01
+    mono_depth_model: str | None = None
+    # everything else
+    densify: DensifyConfig = field(default_factory=DensifyConfig)
+    background: str = "black"
+    backend: str = "auto"
+    device: str = "auto"  # "auto" (cuda when available) | "cpu" | "cuda"
+    random_init_points: int = 50_000  # when the scene has no SfM points
+    snapshot_every: int = 100
+    seed: int = 0
+
+    @classmethod
+    def from_preset(cls, name: str, **overrides) -> "ReconstructConfig":
+        """``quick`` (minutes on 2 CPU cores), ``standard``, or ``paper`` (3DGS's 30k schedule, for a GPU)."""
+        if name == "quick":
+            cfg = cls(preset="quick", iterations=3000, downscale=8, sh_interval=300, random_init_points=5000,
+                      densify=DensifyConfig(start=150, stop=1500, interval=100, reset_every=900,
+                                            max_gaussians=60_000))
+        elif name == "standard":
+            cfg = cls(preset="standard", iterations=7000, downscale=4, sh_interval=1000,
+                      random_init_points=30_000,
+                      densify=DensifyConfig(start=500, stop=3500, interval=100, reset_every=3000,
+                                            max_gaussians=300_000))
+        elif name == "paper":
+            cfg = cls(preset="paper", iterations=30_000, downscale=1, sh_interval=1000,
+                      random_init_points=100_000,
+                      densify=DensifyConfig(start=500, stop=15_000, interval=100, reset_every=3000))
+        else:
+            raise ValueError(f"unknown preset {name!r}; expected one of {', '.join(PRESETS)}")
+        return replace(cfg, **overrides)
+
+    def to_dict(self) -> dict:
+        return asdict(self)
+
+    @classmethod
+    def from_dict(cls, d: dict) -> "ReconstructConfig":
+        known = {f.name for f in fields(cls)}
+        d = {k: v for k, v in d.items() if k in known}
+        dens = d.pop("densify", {}) or {}
+        dknown = {f.name for f in fields(DensifyConfig)}
+        return cls(**d, densify=DensifyConfig(**{k: v for k, v in dens.items() if k in dknown}))
+
+
+def means_lr(cfg: ReconstructConfig, step: int, extent: float) -> float:
+    """3DGS's exponential position learning rate at ``step`` (1-based), scaled by the scene extent."""
+    t = min(max(step / max(cfg.iterations, 1), 0.0), 1.0)
+    lr = math.exp((1 - t) * math.log(cfg.lr_means_init) + t * math.log(cfg.lr_means_final))
+    return lr * extent
+
+
+
+def initial_gaussians(scene: Scene, cfg: ReconstructConfig) -> tuple[Gaussians, str]:
+    """SfM points when the scene has them, else random Gaussians in the view volume; and which it was."""
+    from training.model.gaussian_init import gaussians_from_points, gaussians_random
+
+    if scene.num_points > 0:
+        return gaussians_from_points(scene.points, scene.point_colors, cfg.sh_degree, scene.source), "sfm"
+    return gaussians_random(scene, cfg.random_init_points, cfg.sh_degree, seed=cfg.seed), "random"
+
+
+class Reconstructor:
+    """3DGS trainer. ``gaussians`` is the live model (leaf tensors that require grad); ``step()`` advances it."""
+
+    def __init__(self, scene: Scene, config: ReconstructConfig, gaussians: Gaussians | None = None):
+        from training.reconstruct.depth_targets import compute_depth_targets
+
+        if not scene.images:
+            raise ValueError("Reconstructor needs a scene with its images loaded")
+        if not scene.train_indices:
+            raise ValueError("the scene has no training views")
+        if config.background not in BACKGROUNDS:
+            raise ValueError(f"unknown background {config.background!r}; expected one of {', '.join(BACKGROUNDS)}")
+        self.scene = scene
+        self.config = config
+        self.extent = float(scene.extent)
+        if gaussians is None:
+            gaussians, self.init_source = initial_gaussians(scene, config)
+        else:
+            self.init_source = "given"
+        self.gaussians = gaussians.detached().to(resolve_device(config.device))
+        for t in self.gaussians.parameters().values():
+            t.requires_grad_(True)
+        self.device = self.gaussians.device
+        self.images = [torch.as_tensor(im, device=self.device) for im in scene.images]
+        self.masks = [None if m is None else torch.as_tensor(m, device=self.device) for m in scene.masks]
+        targets, self.depth_mode = compute_depth_targets(scene, config.depth, config.mono_depth_model)
+        self.depth_targets: list[tuple[torch.Tensor, torch.Tensor] | None] | None = None
+        if targets is not None:
+            self.depth_targets = [
+                None if t is None else (torch.as_tensor(t.depth / self.extent, device=self.device),
+                                        torch.as_tensor(t.valid, device=self.device))
+                for t in targets
+            ]
+        self.optimizer = self._make_optimizer()
+        self.strategy = DensifyStrategy(self.extent, len(self.gaussians), self.device)
+        self.generator = torch.Generator(device="cpu").manual_seed(int(config.seed))
+        self.step_count = 0
+        self.active_sh_degree = 0
+        self._order: list[int] = []
+        self.recoveries = 0
+        self._consecutive_recoveries = 0
+        self.last_timings: dict[str, float] = {}
+        self._snapshot = self._take_snapshot()
+
+    # ----------------------------------------------------------------------------------------------- set-up
+    def _make_optimizer(self) -> torch.optim.Adam:
+        cfg = self.config
+        lrs = {"means": means_lr(cfg, 0, self.extent), "log_scales": cfg.lr_scales, "quats": cfg.lr_quats,
+               "opacity_logits": cfg.lr_opacity, "sh0": cfg.lr_sh0, "shN": cfg.lr_shN}
+        params = self.gaussians.parameters()
+        groups = [{"params": [params[n]], "lr": lrs[n], "name": n} for n in PARAM_NAMES]
+        return torch.optim.Adam(groups, lr=0.0, eps=1e-15)
+
+    def _set_learning_rates(self, step: int) -> None:
+        cfg = self.config
+        lrs = {"means": means_lr(cfg, step, self.extent), "log_scales": cfg.lr_scales, "quats": cfg.lr_quats,
+               "opacity_logits": cfg.lr_opacity, "sh0": cfg.lr_sh0, "shN": cfg.lr_shN}
+        for g in self.optimizer.param_groups:
+            g["lr"] = lrs[g["name"]]
+
+    def _next_view(self) -> int:
+        if not self._order:
+            train = self.scene.train_indices
+            perm = torch.randperm(len(train), generator=self.generator).tolist()
+            self._order = [train[i] for i in perm]
+        return self._order.pop()
+
+    def _background(self) -> torch.Tensor | None:
+        bg = self.config.background
+        if bg == "white":
+            return torch.ones(3, device=self.device)
+        if bg == "random":
+            return torch.rand(3, generator=self.generator).to(self.device)
+        return None
+
+    def eval_background(self) -> torch.Tensor | None:
+        return torch.ones(3, device=self.device) if self.config.background == "white" else None
+
+    # ---------------------------------------------------------------------------------------------- training
+    def _params_finite(self) -> bool:
+        return all(bool(torch.isfinite(t).all()) for t in self.gaussians.parameters().values())
+
+    def step(self) -> dict:
+        """One training iteration. Returns {"step", "loss", "l1", "ssim", "psnr", "depth", "shape", "size",
+        "lambda_depth", "num_gaussians", "sh_degree", "view", "cloned", "split", "pruned", "reset",
+        "recovered", "times": {"rasterize", "loss", "backward", "optimizer", "densify"} (seconds)}."""
+        cfg = self.config
+        self.step_count += 1
+        i = self.step_count
+        times = {"rasterize": 0.0, "loss": 0.0, "backward": 0.0, "optimizer": 0.0, "densify": 0.0}
+        self._set_learning_rates(i)
+        self.active_sh_degree = min(cfg.sh_degree, self.gaussians.sh_degree, i // max(cfg.sh_interval, 1))
+        view = self._next_view()
+        cam = self.scene.cameras[view]
+        background = self._background()
+        target = over_background(self.images[view], self.masks[view], background)
+        lam_depth = depth_weight(i, cfg.iterations, cfg.lambda_depth_start, cfg.lambda_depth_end)
+        depth_t = None
+        if cfg.use_depth and self.depth_targets is not None and lam_depth > 0:
+            depth_t = self.depth_targets[view]
+
+        if not self._params_finite():
+            return self._recover(i, view, "the model's parameters are not finite", times)
+
+        t0 = time.perf_counter()
+        image, alpha, info = render_view(self.gaussians, cam, sh_degree=self.active_sh_degree,
+                                         background=background, backend=cfg.backend,
+                                         render_mode="RGB+ED" if depth_t is not None else "RGB")
+        t1 = time.perf_counter()
+        rgb = image[..., :3]
+        l1 = (rgb - target).abs().mean()
+        ssim_val = ssim(rgb, target)
+        loss = (1.0 - cfg.lambda_dssim) * l1 + cfg.lambda_dssim * (1.0 - ssim_val)
+        terms = {"depth": 0.0, "shape": 0.0, "size": 0.0}
+        if depth_t is not None:
+            # expected depth is ill-defined where the render is mostly transparent: supervise only covered pixels
+            valid = depth_t[1] & (alpha[..., 0].detach() > 0.5)
+            ld = depth_loss(image[..., 3] / self.extent, depth_t[0], valid)
+            loss = loss + lam_depth * ld
+            terms["depth"] = float(ld.detach())
+        if cfg.use_shape or cfg.use_size:
+            s_norm = self.gaussians.scales / self.extent
+            if cfg.use_shape:
+                ls = shape_loss(s_norm, cfg.lambda_s)
+                loss = loss + cfg.lambda_shape * ls
+                terms["shape"] = float(ls.detach())
+            if cfg.use_size:
+                lz = size_loss(s_norm, cfg.beta1, cfg.beta2)
+                loss = loss + cfg.lambda_size * lz
+                terms["size"] = float(lz.detach())
+        t2 = time.perf_counter()
+        if not bool(torch.isfinite(loss)):
+            return self._recover(i, view, "the loss is not finite", times)
+        loss.backward()
+        t3 = time.perf_counter()
+        self.optimizer.step()
+        self.optimizer.zero_grad(set_to_none=True)
+        t4 = time.perf_counter()
+        if not self._params_finite():
+            return self._recover(i, view, "the update made parameters non-finite", times)
+        counts = self.strategy.step_post_backward(cfg.densify, i, self.gaussians, self.optimizer, info,
+                                                  cam.width, cam.height, self.generator)
+        t5 = time.perf_counter()
+        times.update(rasterize=t1 - t0, loss=t2 - t1, backward=t3 - t2, optimizer=t4 - t3, densify=t5 - t4)
+        self.last_timings = times
+        self._consecutive_recoveries = 0
+        if cfg.snapshot_every > 0 and i % cfg.snapshot_every == 0:
+            self._snapshot = self._take_snapshot()
+        return {"step": i, "loss": float(loss.detach()), "l1": float(l1.detach()),
+                "ssim": float(ssim_val.detach()),
+                "psnr": psnr(rgb.clamp(0, 1), target), "lambda_depth": lam_depth if depth_t is not None else 0.0,
+                **terms, "num_gaussians": len(self.gaussians), "sh_degree": self.active_sh_degree, "view": view,
+                **counts, "recovered": False, "times": times}
+
+    # ------------------------------------------------------------------------------------------ NaN recovery
+    def _take_snapshot(self) -> dict:
+        return {
+            "params": {k: v.detach().clone() for k, v in self.gaussians.parameters().items()},
+            "optimizer": copy.deepcopy(self.optimizer.state_dict()),
+            "strategy": self.strategy.state_dict(),
+            "step": self.step_count,
+        }
+
+    def _restore(self, snap: dict) -> None:
+        for name, t in snap["params"].items():
+            setattr(self.gaussians, name, t.clone().requires_grad_(True))
+        self.optimizer = self._make_optimizer()
+        self.optimizer.load_state_dict(copy.deepcopy(snap["optimizer"]))
+        self.strategy.load_state_dict(snap["strategy"])
+
+    def _recover(self, step: int, view: int, why: str, times: dict) -> dict:
+        self.optimizer.zero_grad(set_to_none=True)
+        self._consecutive_recoveries += 1
+        self.recoveries += 1
+        if self._consecutive_recoveries > MAX_CONSECUTIVE_RECOVERIES:
+            raise RuntimeError(f"training diverged: {MAX_CONSECUTIVE_RECOVERIES} steps in a row were not finite "
+                               f"(last: {why}); lower the learning rates or check the input")
+        warnings.warn(f"step {step}: {why}; restored the model from step {self._snapshot['step']} and continuing",
+                      RuntimeWarning, stacklevel=3)
+        self._restore(self._snapshot)
+        self.last_timings = times
+        return {"step": step, "loss": float("nan"), "psnr": float("nan"), "num_gaussians": len(self.gaussians),
+                "sh_degree": self.active_sh_degree, "view": view, "recovered": True, "times": times}
+
+    # ------------------------------------------------------------------------------------------- evaluation
+    def evaluate(self, indices) -> dict:
+        """{"psnr", "ssim", "views"} of the current model on the scene's views at ``indices``."""
+        return evaluate_views(self.gaussians, self.scene, list(indices), sh_degree=self.active_sh_degree,
+                              background=self.eval_background(), backend=self.config.backend)
+
+    def export_gaussians(self) -> Gaussians:
+        """A detached copy of the model, ready for write_ply (the full SH degree it holds)."""
+        return self.gaussians.detached()
+
+    # ------------------------------------------------------------------------------------------ checkpoints
+    def state_dict(self) -> dict:
+        return {
+            "step": self.step_count,
+            "params": {k: v.detach().clone() for k, v in self.gaussians.parameters().items()},
+            "sh_degree": self.gaussians.sh_degree,
+            "active_sh_degree": self.active_sh_degree,
+            "optimizer": self.optimizer.state_dict(),
+            "strategy": self.strategy.state_dict(),
+            "rng": self.generator.get_state(),
+            "order": list(self._order),
+            "config": self.config.to_dict(),
+            "init_source": self.init_source,
+            "recoveries": self.recoveries,
+        }
+
+    def load_state_dict(self, state: dict) -> None:
+        """Restore a state_dict() (the config is left as this trainer's; build it from state["config"])."""
+        params = {k: v.to(self.device) for k, v in state["params"].items()}
+        self.gaussians = Gaussians(**params, sh_degree=int(state["sh_degree"]))
+        for t in self.gaussians.parameters().values():
+            t.requires_grad_(True)
+        self.optimizer = self._make_optimizer()
+        self.optimizer.load_state_dict(state["optimizer"])
+        self.strategy.load_state_dict(state["strategy"])
+        self.generator.set_state(state["rng"])
+        self._order = list(state["order"])
+        self.step_count = int(state["step"])
+        self.active_sh_degree = int(state["active_sh_degree"])
+        self.init_source = state.get("init_source", self.init_source)
+        self.recoveries = int(state.get("recoveries", 0))
+        self._snapshot = self._take_snapshot()

@@ -1,0 +1,133 @@
+"""The whole ``splatstyler stylize`` job: read the model, the scene and the painting, stylize, write the outputs.
+
+Outputs (each written atomically, and only once stylization has finished, so an error leaves nothing half-made):
+OUT/point_cloud.ply, OUT/renders/NNN_<view>.png for every view of the scene, OUT/report.json.
+"""
+
+from __future__ import annotations
+
+import json
+import time
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from training.core.errors import InputError
+from training.stylize.trainer import StylizeConfig, Stylizer
+
+
+def choose_downscale(data: Path, max_side: int) -> int:
+    """The largest whole downscale whose images are still at least ``max_side`` on their long side."""
+    from training.scene.loader import load_scene
+
+    cams = load_scene(data, load_images=False).cameras
+    if not cams:
+        raise InputError(data, "the scene has no cameras")
+    long_side = max(max(c.width, c.height) for c in cams)
+    return max(1, long_side // max(1, max_side))
+
+
+def stylize_to_folder(model: Path, data: Path, style: Path, out: Path, config: StylizeConfig,
+                      vgg_weights: str | None = None, progress: bool = False) -> dict[str, Any]:
+    """Run the job and return the report (also written to OUT/report.json)."""
+    from training.core.atomic_write import atomic_open
+    from training.scene.image_io import write_image
+    from training.model.ply_io import read_ply, write_ply
+    from training.scene.loader import load_scene
+    from training.stylize.style_image import load_style_image
+
+    config.validate()
+    t_start = time.perf_counter()
+    if out.exists() and not out.is_dir():
+        raise InputError(out, "output exists and is not a folder")
+    style_image = load_style_image(style)  # first: a bad painting should not cost a scene load
+    gaussians = read_ply(model)
+    scene = load_scene(data, downscale=choose_downscale(data, config.render_max_side))
+    t_loaded = time.perf_counter()
+
+    stylizer = Stylizer(gaussians, scene, style_image, config, vgg_weights=vgg_weights, model_name=model)
+    t0 = time.perf_counter()
+    distance_start = stylizer.style_distance(sh=stylizer.original_sh)
+    distance_pre = stylizer.style_distance() if stylizer.pre_transform is not None else distance_start
+    stylizer.times.add("style_distance", time.perf_counter() - t0)
+    if progress:
+        print(f"stylize: {len(scene.cameras)} views ({stylizer.kind}), {len(stylizer.trajectory)} in the "
+              f"trajectory, {stylizer.total_iters} iterations at "
+              f"{stylizer.cameras[0].width}x{stylizer.cameras[0].height}; VGG weights: "
+              f"{getattr(stylizer.vgg, 'weights_source', 'given')}", flush=True)
+    t0 = time.perf_counter()
+    stylizer.run(progress=progress)
+    first = stylizer.history[0] if stylizer.history else None
+    stylize_seconds = time.perf_counter() - t0
+    utilisation = stylizer.utilisation()
+    stylizer.finish()
+    t0 = time.perf_counter()
+    distance_end = stylizer.style_distance()
+    stylizer.times.add("style_distance", time.perf_counter() - t0)
+
+    t0 = time.perf_counter()
+    renders = stylizer.render_views()
+    out.mkdir(parents=True, exist_ok=True)
+    write_ply(out / "point_cloud.ply", stylizer.stylized_gaussians())
+    render_names = []
+    for pos, ((img, _), cam) in enumerate(zip(renders, stylizer.cameras)):
+        name = f"{pos:03d}_{Path(cam.name).stem}.png"
+        write_image(out / "renders" / name, img)
+        render_names.append(name)
+    # renders of an earlier run into the same folder (with more views) would otherwise pass for this run's
+    for stale in (out / "renders").glob("[0-9][0-9][0-9]_*.png"):
+        if stale.name not in render_names:
+            stale.unlink()
+    stylizer.times.add("write_outputs", time.perf_counter() - t0)
+
+    last = stylizer.history[-1] if stylizer.history else None
+    report: dict[str, Any] = {
+        "model": str(model), "data": str(data), "style": str(style), "output": str(out),
+        "config": stylizer.config_dict(),
+        "scene_kind": stylizer.kind,
+        "num_views": len(scene.cameras),
+        "trajectory_length": len(stylizer.trajectory),
+        "view_order": [scene.cameras[i].name for i in stylizer.order],
+        "iterations": stylizer.iteration,
+        "iters_per_view": stylizer.iters_per_view,
+        "render_size": [stylizer.cameras[0].width, stylizer.cameras[0].height],
+        "num_gaussians": len(stylizer.gaussians),
+        "sh_degree": stylizer.gaussians.sh_degree,
+        "vgg_weights": str(getattr(stylizer.vgg, "weights_source", "given")),
+        "losses": {"first": first, "last": last, "history": stylizer.history},
+        "style_distance": {
+            "metric": "Gram distance of VGG relu3 features to the painting, mean over up to 8 evenly spaced views "
+                      "(gram: raw features; gram_normalised: features of unit length per position)",
+            **{f"{k}_start": v for k, v in distance_start.items()},
+            **{f"{k}_after_pre_color_transfer": v for k, v in distance_pre.items()},
+            **{f"{k}_end": v for k, v in distance_end.items()},
+            **{f"{k}_ratio_end_to_start": distance_end[k] / v if v > 0 else None for k, v in distance_start.items()},
+        },
+        "utilisation": utilisation,
+        "color_transfer": {
+            "pre": stylizer.pre_transform.to_dict() if stylizer.pre_transform else None,
+            "post": stylizer.post_transform.to_dict() if stylizer.post_transform else None,
+        },
+        "iterations_per_second": stylizer.iteration / stylize_seconds if stylize_seconds > 0 else None,
+        "time_s": {"load_inputs": t_loaded - t_start, **stylizer.times.totals,
+                   "stylize_loop": stylize_seconds, "total": time.perf_counter() - t_start},
+        "renders": render_names,
+    }
+    with atomic_open(out / "report.json", "w") as f:
+        json.dump(_jsonable(report), f, indent=2)
+        f.write("\n")
+    return report
+
+
+def _jsonable(value: Any) -> Any:
+    if isinstance(value, dict):
+        return {str(k): _jsonable(v) for k, v in value.items()}
+    if isinstance(value, (list, tuple)):
+        return [_jsonable(v) for v in value]
+    if isinstance(value, (np.floating, np.integer)):
+        return value.item()
+    if isinstance(value, float) and not np.isfinite(value):
+        return None
+    return value
+

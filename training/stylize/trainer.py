@@ -1,0 +1,549 @@
+"""Scene stylization after a painting: the paper's capacity-controlled stylization, one iteration per ``step()``.
+
+Per iteration, on the current view of the trajectory (views in order, ``iters_per_view`` iterations each):
+render the Gaussians; VGG-16 relu3 features of the render and of the content image (the photo after the pre colour
+transfer, or the pre-stylization render for a virtual view), both halved first as ARF does; the style loss (CCFT with
+the guide map carried from iteration to iteration, or the NNFM / Gram baselines) against the style image's features
+(resized so that its long side matches the render's, then halved); content loss = MSE of the features; Adam on the
+SH colour coefficients only. Geometry (means, scales, rotations, opacities) is never optimised and never written:
+it stays bit-identical. Before the first step, the content images and the Gaussians' colours get the linear colour
+transfer toward the painting; ``finish()`` re-renders every view, refits the transfer from those renders to the
+painting and applies it to the Gaussians (ARF's pre and post colour transfer).
+
+The config may change between steps (the viewer's sliders): loss parameters, weights, learning rate, iterations per
+view and even the loss itself take effect on the next step.
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import asdict, dataclass, field, replace
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import torch
+import torch.nn.functional as F
+
+from training.stylize.color_transfer import (ColorTransform, apply_to_gaussians, apply_to_image, fit_color_transfer,
+                                     foreground_pixels)
+from training.core.errors import InputError
+from training.model.gaussians import Gaussians
+from training.raster.rasterize import resolve_device
+from training.scene.scene import Camera, Scene, over_background
+from training.stylize.style_image import check_style_array, halve, style_for_render
+from training.stylize.view_order import VIEW_ORDERS, scene_kind, view_order
+from training.stylize.virtual_views import ViewItem, trajectory
+
+LOSSES = ("ccft", "nnfm", "gram")
+PRESETS = ("paper", "quick")
+# The paper's schedule (supplementary, "Additional Implementation Details").
+FORWARD_ITERS_PER_VIEW, FORWARD_MIN_TOTAL = 50, 2000
+ORBIT_ITERS_PER_VIEW, ORBIT_ITERS_PER_VIEW_MANY, ORBIT_MANY_VIEWS = 20, 15, 200
+# quick (CPU): the render's long side and a fraction of the paper's iterations.
+QUICK_MAX_SIDE = 256
+QUICK_ITER_FRACTION = 0.2
+# paper: 3DGS trains on images whose long side is at most 1600 pixels; we render at that resolution too.
+PAPER_MAX_SIDE = 1600
+# Style weight per loss. CCFT: the paper's lambda_CCFT = 30. NNFM's loss is also a mean cosine distance per rendered
+# feature, on the same scale as <T, C>, so it takes the same weight (the ablations then compare the losses, not
+# their weights). The Gram loss (mean squared Gram difference of raw relu3 features) starts around 20-50 on our
+# scenes where <T, C> starts near 0.6: weight 1 keeps the same style-to-content balance.
+DEFAULT_LAMBDA_STYLE = {"ccft": 30.0, "nnfm": 30.0, "gram": 1.0}
+# Adam on the SH DC term: the colour moves by about SH_C0 * lr per step. On fern (quick preset) 0.05 left speckle
+# and over-strong texture (raw Gram distance to the painting 0.73 of the start) where 0.02 gave 0.46.
+DEFAULT_LR = 0.02
+SHN_LR_FACTOR = 1.0 / 20.0  # 3DGS: the higher SH orders learn 20x slower than the DC term
+MATCH_MIN_INSIDE = 0.5  # at least this fraction of the Gaussians must lie inside some camera's view
+MATCH_MIN_ALPHA = 0.02  # a render whose mean coverage is below this shows (nearly) nothing
+
+
+@dataclass
+class StylizeConfig:
+    """Stylization settings; ``None`` means "from the preset / the paper's schedule"."""
+
+    loss: str = "ccft"  # ccft | nnfm | gram
+    tau: float = 0.5
+    k: int = 16
+    epsilon: float = 0.05
+    lambda_guide: float = 1.0
+    sinkhorn_iters: int = 50
+    lambda_style: float | None = None  # None: DEFAULT_LAMBDA_STYLE[loss] (30 for CCFT)
+    lambda_content: float = 0.005
+    lr: float | None = None  # Adam learning rate of sh0 (shN: lr / 20); None: DEFAULT_LR
+    iters_per_view: int | None = None
+    min_total_iters: int | None = None
+    scene_kind: str = "auto"  # auto | forward | 360
+    view_order: str = "nearest"  # dataset | nearest | random
+    seed: int = 0
+    virtual_views: int = 0
+    dc_only: bool = False  # keep shN at its initial values (frozen): the stylization is view-independent
+    preset: str = "paper"  # paper | quick
+    max_side: int | None = None  # long side of the renders; None: the preset's
+    color_transfer: bool = True  # ARF's linear colour transfer before and after
+    backend: str = "auto"  # rasterizer backend
+    device: str = "auto"  # auto | cpu | cuda
+    background: tuple[float, float, float] = (0.0, 0.0, 0.0)
+
+    def validate(self) -> None:
+        if self.loss not in LOSSES:
+            raise ValueError(f"unknown loss {self.loss!r}; expected one of {', '.join(LOSSES)}")
+        if self.preset not in PRESETS:
+            raise ValueError(f"unknown preset {self.preset!r}; expected one of {', '.join(PRESETS)}")
+        if self.view_order not in VIEW_ORDERS:
+            raise ValueError(f"unknown view order {self.view_order!r}; expected one of {', '.join(VIEW_ORDERS)}")
+        if self.scene_kind not in ("auto", "forward", "360"):
+            raise ValueError(f"unknown scene kind {self.scene_kind!r}; expected auto, forward or 360")
+        checks = [("k", self.k >= 1, "at least 1"), ("epsilon", self.epsilon > 0, "positive"),
+                  ("tau", self.tau > 0, "positive"), ("sinkhorn_iters", self.sinkhorn_iters >= 1, "at least 1"),
+                  ("lambda_content", self.lambda_content >= 0, "at least 0"),
+                  ("lr", self.lr is None or self.lr > 0, "positive"),
+                  ("virtual_views", self.virtual_views >= 0, "at least 0"),
+                  ("lambda_guide", self.lambda_guide >= 0, "at least 0"),
+                  ("lambda_style", self.lambda_style is None or self.lambda_style >= 0, "at least 0"),
+                  ("iters_per_view", self.iters_per_view is None or self.iters_per_view >= 1, "at least 1"),
+                  ("min_total_iters", self.min_total_iters is None or self.min_total_iters >= 0, "at least 0"),
+                  ("max_side", self.max_side is None or self.max_side >= 16, "at least 16")]
+        for name, ok, rule in checks:
+            if not ok:
+                raise ValueError(f"{name} must be {rule}, got {getattr(self, name)!r}")
+
+    @property
+    def style_weight(self) -> float:
+        return DEFAULT_LAMBDA_STYLE[self.loss] if self.lambda_style is None else float(self.lambda_style)
+
+    @property
+    def learning_rate(self) -> float:
+        if self.lr is not None:
+            return float(self.lr)
+        return DEFAULT_LR
+
+    @property
+    def render_max_side(self) -> int:
+        if self.max_side is not None:
+            return int(self.max_side)
+        return QUICK_MAX_SIDE if self.preset == "quick" else PAPER_MAX_SIDE
+
+
+def paper_schedule(kind: str, num_views: int) -> tuple[int, int]:
+    """(iterations per view, minimum total iterations) of the paper for a scene kind and number of views."""
+    if kind == "forward":
+        return FORWARD_ITERS_PER_VIEW, FORWARD_MIN_TOTAL
+    return (ORBIT_ITERS_PER_VIEW if num_views <= ORBIT_MANY_VIEWS else ORBIT_ITERS_PER_VIEW_MANY), 0
+
+
+def schedule(config: StylizeConfig, kind: str, num_views: int) -> tuple[int, int]:
+    """(iterations per view, minimum total) after the preset and the config's overrides."""
+    per_view, min_total = paper_schedule(kind, num_views)
+    if config.preset == "quick":
+        per_view = max(1, int(round(per_view * QUICK_ITER_FRACTION)))
+        min_total = int(round(min_total * QUICK_ITER_FRACTION))
+    if config.iters_per_view is not None:
+        per_view = int(config.iters_per_view)
+    if config.min_total_iters is not None:
+        min_total = int(config.min_total_iters)
+    return per_view, min_total
+
+
+
+def render_camera(camera: Camera, max_side: int) -> Camera:
+    """The camera at the stylization resolution (never upscaled)."""
+    factor = min(1.0, max_side / max(camera.width, camera.height))
+    return camera if factor >= 1.0 else camera.scaled(factor)
+
+
+def check_model_matches_scene(gaussians: Gaussians, cameras: list[Camera], model_name: str | Path | None = None,
+                              near: float = 0.01) -> float:
+    """Fraction of Gaussians inside at least one camera's view frustum; InputError when most are outside.
+
+    A model reconstructed from these photos lies in front of the cameras that saw it; a model from another scene
+    (or in another coordinate frame) mostly does not."""
+    means = gaussians.means.detach().to("cpu", torch.float64).numpy()
+    if len(means) == 0:
+        raise InputError(model_name, "the model holds no Gaussians")
+    inside = np.zeros(len(means), dtype=bool)
+    for cam in cameras:
+        R = cam.world_to_camera[:3, :3]
+        t = cam.world_to_camera[:3, 3]
+        pc = means @ R.T + t
+        z = pc[:, 2]
+        front = z > near
+        zs = np.where(front, z, 1.0)
+        u = cam.fx * pc[:, 0] / zs + cam.cx
+        v = cam.fy * pc[:, 1] / zs + cam.cy
+        mx, my = 0.1 * cam.width, 0.1 * cam.height  # a small margin: splats just outside still reach the image
+        inside |= front & (u > -mx) & (u < cam.width + mx) & (v > -my) & (v < cam.height + my)
+    fraction = float(inside.mean())
+    if fraction < MATCH_MIN_INSIDE:
+        raise InputError(model_name, f"only {fraction:.0%} of its {len(means)} Gaussians lie inside any camera's "
+                                     "view: the model does not belong to this scene (or to its coordinate frame)")
+    return fraction
+
+
+@dataclass
+class StageTimes:
+    """Seconds spent per stage, accumulated."""
+
+    totals: dict[str, float] = field(default_factory=dict)
+
+    def add(self, name: str, seconds: float) -> None:
+        self.totals[name] = self.totals.get(name, 0.0) + seconds
+
+
+class Stylizer:
+    """Stylize ``gaussians`` (a reconstruction of ``scene``) after ``style_image``, one ``step()`` at a time.
+
+    ``style_image``: float32 (H, W, 3) in [0, 1] (see ``training.stylize.style_image.load_style_image``).
+    ``vgg``: a ``VGGFeatures`` to share; loaded (with ``config``'s weights source) when None.
+    The caller's Gaussians are not modified: ``self.gaussians`` is a new model sharing the geometry tensors
+    (detached) with new colour tensors.
+    """
+
+    def __init__(self, gaussians: Gaussians, scene: Scene, style_image: np.ndarray, config: StylizeConfig | None = None,
+                 vgg: torch.nn.Module | None = None, vgg_weights: str | None = None,
+                 model_name: str | Path | None = None, check_match: bool = True):
+        self.config = config or StylizeConfig()
+        self.config.validate()
+        self.device = resolve_device(self.config.device)
+        self.times = StageTimes()
+        t0 = time.perf_counter()
+        if not scene.cameras:
+            raise InputError(scene.source, "the scene has no cameras")
+        if len(scene.images) != len(scene.cameras):
+            raise InputError(scene.source, "the scene's images are not loaded (load_scene(..., load_images=True))")
+        self.scene = scene
+        self.style_image = check_style_array(style_image)
+        self.model_name = model_name
+
+        if vgg is None:
+            from training.stylize.vgg_features import load_vgg16_features
+
+            vgg = load_vgg16_features(vgg_weights)
+        self.vgg = vgg.to(self.device)
+
+        geometry = {k: getattr(gaussians, k).detach().to(self.device)
+                    for k in ("means", "log_scales", "quats", "opacity_logits")}
+        colour = {k: getattr(gaussians, k).detach().to(self.device).clone() for k in ("sh0", "shN")}
+        self.gaussians = Gaussians(**geometry, **colour, sh_degree=gaussians.sh_degree)
+        # Activated geometry, computed once: it never changes and needs no gradient.
+        self._scales = self.gaussians.scales.detach()
+        self._opacities = self.gaussians.opacities.detach()
+
+        # Views: all cameras of the scene, at the stylization resolution.
+        max_side = self.config.render_max_side
+        self.cameras = [render_camera(c, max_side) for c in scene.cameras]
+        if check_match:
+            check_model_matches_scene(self.gaussians, self.cameras, model_name)
+        self.kind = scene_kind(scene.cameras, self.config.scene_kind)
+        self.order = view_order(scene.cameras, self.config.view_order, seed=self.config.seed, extent=scene.extent)
+        self.trajectory: list[ViewItem] = trajectory(self.cameras, self.order, self.config.virtual_views)
+        # RGBA photos are compared over the same background as the renders
+        bg = np.asarray(self.config.background, dtype=np.float32)
+        self.content_images = [self._resize(over_background(img, mask, bg), cam)
+                               for img, mask, cam in zip(scene.images, scene.masks, self.cameras)]
+        self.times.add("load", time.perf_counter() - t0)
+
+        t0 = time.perf_counter()
+        if check_match:
+            self._check_renders_not_empty()
+        self.pre_transform: ColorTransform | None = None
+        self.post_transform: ColorTransform | None = None
+        if self.config.color_transfer:
+            style_px = self.style_image.reshape(-1, 3)
+            self.pre_transform = fit_color_transfer(self.content_images, style_px)
+            self.content_images = [apply_to_image(img, self.pre_transform) for img in self.content_images]
+            self.gaussians = apply_to_gaussians(self.gaussians, self.pre_transform)
+        # The pre-stylization model: the content of virtual views.
+        self._initial_sh = self.gaussians.sh.detach().clone()
+        self.times.add("pre_color_transfer", time.perf_counter() - t0)
+        self.original_sh = torch.cat([colour["sh0"], colour["shN"]], dim=1)  # the input model's colours
+
+        self.iteration = 0
+        self._position = 0  # index into the trajectory
+        self._iters_on_view = 0
+        self._style_cache: dict[int, torch.Tensor] = {}
+        self._content_cache: tuple[int, torch.Tensor] | None = None
+        self._loss_name: str | None = None
+        self.style_loss = None
+        self._optimizer: torch.optim.Optimizer | None = None
+        self._dc_only: bool | None = None
+        self.last_stats: dict[str, Any] = {}
+        self.history: list[dict[str, float]] = []
+        self.finished = False
+
+    # ------------------------------------------------------------------ schedule
+    @property
+    def iters_per_view(self) -> int:
+        return schedule(self.config, self.kind, len(self.scene.cameras))[0]
+
+    @property
+    def total_iters(self) -> int:
+        """Iterations of the whole schedule: every trajectory view ``iters_per_view`` times, at least the minimum."""
+        per_view, min_total = schedule(self.config, self.kind, len(self.scene.cameras))
+        return max(per_view * len(self.trajectory), min_total)
+
+    @property
+    def done(self) -> bool:
+        return self.iteration >= self.total_iters
+
+    @property
+    def current_view(self) -> ViewItem:
+        return self.trajectory[self._position]
+
+    # ------------------------------------------------------------------ rendering
+    def _resize(self, image: np.ndarray, camera: Camera) -> np.ndarray:
+        if image.shape[:2] == (camera.height, camera.width):
+            return np.ascontiguousarray(image, dtype=np.float32)
+        from training.scene.image_io import resize_image
+
+        return resize_image(image, camera.width, camera.height)
+
+    def render(self, camera: Camera, sh: torch.Tensor | None = None) -> tuple[torch.Tensor, torch.Tensor]:
+        """Render at ``camera`` with the current colours (or ``sh`` (N, K, 3)) -> image (H, W, 3), alpha (H, W, 1)."""
+        from training.raster.rasterize import rasterize
+
+        g = self.gaussians
+        colors = g.sh if sh is None else sh
+        dt = g.means.dtype
+        image, alpha, _ = rasterize(
+            g.means, g.quats, self._scales, self._opacities, colors,
+            torch.as_tensor(camera.world_to_camera, dtype=dt, device=self.device),
+            torch.as_tensor(camera.K, dtype=dt, device=self.device), camera.width, camera.height,
+            sh_degree=g.sh_degree, background=torch.tensor(self.config.background, dtype=dt, device=self.device),
+            backend=self.config.backend)
+        return image, alpha
+
+    def render_views(self, cameras: list[Camera] | None = None) -> list[tuple[np.ndarray, np.ndarray]]:
+        """(image (H, W, 3), alpha (H, W, 1)) numpy renders of ``cameras`` (default: every scene view)."""
+        out = []
+        with torch.no_grad():
+            for cam in cameras if cameras is not None else self.cameras:
+                img, alpha = self.render(cam)
+                out.append((img.clamp(0, 1).float().cpu().numpy(), alpha.float().cpu().numpy()))
+        return out
+
+    def _check_renders_not_empty(self) -> None:
+        picks = sorted({0, len(self.cameras) // 2, len(self.cameras) - 1})
+        small = [render_camera(self.cameras[i], 96) for i in picks]
+        with torch.no_grad():
+            coverage = [float(self.render(cam)[1].mean()) for cam in small]
+        if max(coverage) < MATCH_MIN_ALPHA:
+            raise InputError(self.model_name, f"renders of the scene's views are empty (coverage at most "
+                                              f"{max(coverage):.1%}): the model does not match this scene")
+
+    # ------------------------------------------------------------------ features
+    def features(self, image_hwc: torch.Tensor) -> torch.Tensor:
+        """(H, W, 3) image -> (1, 768, h, w) VGG features of the image halved (ARF)."""
+        x = image_hwc.permute(2, 0, 1)[None].float()
+        return self.vgg(halve(x))
+
+    def style_features(self, camera: Camera) -> torch.Tensor:
+        """(1, 768, h, w) features of the painting resized so its long side equals the render's, then halved."""
+        side = max(camera.width, camera.height)
+        if side not in self._style_cache:
+            with torch.no_grad():
+                style = style_for_render(self.style_image, side).to(self.device)
+                self._style_cache[side] = self.vgg(halve(style))
+        return self._style_cache[side]
+
+    def content_features(self) -> torch.Tensor:
+        """(1, 768, h, w) content features of the current view (cached while the view lasts)."""
+        if self._content_cache is not None and self._content_cache[0] == self._position:
+            return self._content_cache[1]
+        view = self.current_view
+        with torch.no_grad():
+            if view.is_virtual:
+                content, _ = self.render(view.camera, sh=self._initial_sh)
+                content = content.clamp(0, 1)
+            else:
+                content = torch.from_numpy(self.content_images[view.source_index]).to(self.device)
+            feats = self.features(content)
+        self._content_cache = (self._position, feats)
+        return feats
+
+    # ------------------------------------------------------------------ config sync
+    def _sync(self) -> None:
+        """Apply the (possibly changed) config: loss object and its parameters, optimiser, learning rate."""
+        cfg = self.config
+        cfg.validate()
+        if self.style_loss is None or cfg.loss != self._loss_name:
+            from training.stylize.style_losses import make_style_loss
+
+            self.style_loss = make_style_loss(cfg.loss)
+            self._loss_name = cfg.loss
+        for name, value in (("k", cfg.k), ("epsilon", cfg.epsilon), ("tau", cfg.tau),
+                            ("lambda_guide", cfg.lambda_guide), ("iters", cfg.sinkhorn_iters)):
+            if hasattr(self.style_loss, name):
+                setattr(self.style_loss, name, value)
+        if self._optimizer is None or cfg.dc_only != self._dc_only:
+            self._make_optimizer()
+        for group in self._optimizer.param_groups:
+            group["lr"] = cfg.learning_rate * group["lr_scale"]
+
+    def _make_optimizer(self) -> None:
+        g = self.gaussians
+        sh0 = g.sh0.detach().clone().requires_grad_(True)
+        shN = g.shN.detach().clone().requires_grad_(not self.config.dc_only)
+        g.sh0, g.shN = sh0, shN
+        lr = self.config.learning_rate
+        groups = [{"params": [sh0], "lr_scale": 1.0, "lr": lr}]
+        if not self.config.dc_only and shN.numel() > 0:
+            groups.append({"params": [shN], "lr_scale": SHN_LR_FACTOR, "lr": lr * SHN_LR_FACTOR})
+        self._optimizer = torch.optim.Adam(groups, eps=1e-15)
+        self._dc_only = self.config.dc_only
+
+    # ------------------------------------------------------------------ one iteration
+    def step(self) -> dict[str, Any]:
+        """One stylization iteration on the current view; returns losses, the view and a timing breakdown (s)."""
+        self._sync()
+        cfg = self.config
+        view = self.current_view
+        timings: dict[str, float] = {}
+        sync = (lambda: torch.cuda.synchronize()) if self.device.type == "cuda" else (lambda: None)
+
+        t = time.perf_counter()
+        image, alpha = self.render(view.camera)
+        sync()
+        timings["rasterize"] = time.perf_counter() - t
+
+        t = time.perf_counter()
+        feats = self.features(image)
+        content = self.content_features()
+        style = self.style_features(view.camera)
+        sync()
+        timings["vgg_forward"] = time.perf_counter() - t
+
+        t = time.perf_counter()
+        style_loss, stats = self.style_loss(feats, style)
+        content_loss = F.mse_loss(feats, content)
+        loss = cfg.style_weight * style_loss + cfg.lambda_content * content_loss
+        sync()
+        timings["loss"] = time.perf_counter() - t
+        for key, value in stats.items():  # the loss's own breakdown: similarity_topk_s, sinkhorn_s, guide_s
+            if key.endswith("_s"):
+                timings[key[:-2]] = float(value)
+
+        t = time.perf_counter()
+        self._optimizer.zero_grad(set_to_none=True)
+        loss.backward()
+        sync()
+        timings["backward"] = time.perf_counter() - t
+
+        t = time.perf_counter()
+        self._optimizer.step()
+        sync()
+        timings["optimizer"] = time.perf_counter() - t
+        for key, value in timings.items():
+            self.times.add(f"stylize/{key}", value)
+
+        result = {
+            "iteration": self.iteration,
+            "loss": float(loss.detach()),
+            "style_loss": float(style_loss.detach()),
+            "content_loss": float(content_loss.detach()),
+            "view": view.camera.name,
+            "view_index": view.source_index,
+            "trajectory_position": self._position,
+            "virtual": view.is_virtual,
+            "coverage": float(alpha.detach().mean()),
+            "timings": timings,
+        }
+        result.update({k: _plain(v) for k, v in stats.items()
+                       if k not in ("loss",) and not k.endswith("_s") and _is_scalar(v)})
+        self.last_stats = result
+        self.history.append({k: result[k] for k in ("iteration", "loss", "style_loss", "content_loss")})
+
+        self.iteration += 1
+        self._iters_on_view += 1
+        if self._iters_on_view >= self.iters_per_view:
+            self._iters_on_view = 0
+            self._position = (self._position + 1) % len(self.trajectory)
+        return result
+
+    def run(self, progress: bool = False) -> None:
+        """Step until the schedule is done."""
+        bar = None
+        if progress:
+            from tqdm import tqdm
+
+            bar = tqdm(total=self.total_iters, initial=self.iteration, desc="stylizing", unit="it")
+        while not self.done:
+            r = self.step()
+            if bar is not None:
+                bar.set_postfix(loss=f"{r['loss']:.4f}", style=f"{r['style_loss']:.4f}", view=r["trajectory_position"])
+                bar.update(1)
+        if bar is not None:
+            bar.close()
+
+    # ------------------------------------------------------------------ after
+    def finish(self) -> ColorTransform | None:
+        """ARF's post colour transfer: render every view, fit the map from those renders to the painting, apply it
+        to the Gaussians' colours. Returns the map (None when colour transfer is off)."""
+        t0 = time.perf_counter()
+        self.finished = True
+        if not self.config.color_transfer:
+            return None
+        renders = self.render_views()
+        pixels = [foreground_pixels(img, a) for img, a in renders]
+        pixels = [p for p in pixels if len(p)]
+        if not pixels:
+            return None
+        self.post_transform = fit_color_transfer(pixels, self.style_image.reshape(-1, 3))
+        self.gaussians = apply_to_gaussians(self.gaussians.detached(), self.post_transform)
+        self._optimizer = None  # the colour tensors were replaced: a later step() starts a fresh optimiser
+        self.times.add("post_color_transfer", time.perf_counter() - t0)
+        return self.post_transform
+
+    def style_distance(self, sh: torch.Tensor | None = None, max_views: int | None = 8) -> dict[str, float]:
+        """Mean over the scene's views (at most ``max_views`` of them, evenly spaced: the report's figure should not
+        cost as much as the stylization itself) of the Gram distance between the render's features and the painting's (both
+        prepared as for the loss): ``gram`` on the raw relu3 features, ``gram_normalised`` on features scaled to
+        unit length per position (blind to overall activation strength, i.e. contrast, which cosine-based losses
+        leave free). ``sh``: colours to render with (default: the current ones)."""
+        from training.stylize.ccft import l2_normalise
+
+        totals = {"gram": 0.0, "gram_normalised": 0.0}
+        cameras = self.cameras
+        if max_views is not None and len(cameras) > max_views:
+            cameras = [cameras[int(i)] for i in np.linspace(0, len(cameras) - 1, max_views).round()]
+        with torch.no_grad():
+            for cam in cameras:
+                image, _ = self.render(cam, sh=sh)
+                f, fs = self.features(image.clamp(0, 1)), self.style_features(cam)
+                totals["gram"] += gram_distance(f, fs)
+                unit = lambda x: l2_normalise(x[0].flatten(1).t()).t().reshape(x.shape)  # noqa: E731
+                totals["gram_normalised"] += gram_distance(unit(f), unit(fs))
+        return {k: v / len(cameras) for k, v in totals.items()}
+
+    def stylized_gaussians(self) -> Gaussians:
+        """The current model, detached, on the CPU."""
+        return self.gaussians.detached().to("cpu")
+
+    def utilisation(self) -> dict[str, float]:
+        """Style-feature utilisation of the last iteration (whatever the loss reported)."""
+        keys = ("utilisation", "column_entropy", "column_entropy_normalised", "reachable_fraction",
+                "distinct_fraction", "distinct_count")
+        return {k: self.last_stats[k] for k in keys if k in self.last_stats}
+
+    def config_dict(self) -> dict[str, Any]:
+        return asdict(replace(self.config))
+
+
+def _is_scalar(value: Any) -> bool:
+    if isinstance(value, (int, float, bool, str)):
+        return True
+    return isinstance(value, torch.Tensor) and value.numel() == 1
+
+
+def _plain(value: Any) -> Any:
+    if isinstance(value, torch.Tensor):
+        return value.item()
+    return value
+
+
+def gram_distance(features: torch.Tensor, style_features: torch.Tensor) -> float:
+    """The Gram loss (Gatys; ``training.stylize.style_losses.GramStyleLoss``) between two (1, C, h, w) feature maps: the
+    style distance of the acceptance figures."""
+    from training.stylize.style_losses import GramStyleLoss
+
+    return float(GramStyleLoss()(features, style_features)[0])
