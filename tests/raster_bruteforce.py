@@ -3,7 +3,7 @@
 No tiles, no screen boxes, no frustum culling: every pixel visits every Gaussian in front of the near plane, in
 increasing depth, one after the other, exactly as the compositing rule reads. Written separately from the
 backends (rotations via scipy, covariances via einsum) so the two implementations share no code except the SH
-basis formulas.
+basis formulas and the numbers in training/raster/constants.py.
 """
 
 from __future__ import annotations
@@ -13,11 +13,12 @@ import torch
 from scipy.spatial.transform import Rotation
 
 from training.model.sh import sh_to_rgb
+from training.raster.constants import ALPHA_MAX, ALPHA_MIN, EPS2D, FAR_PLANE, FOV_CLAMP_MARGIN, NEAR_PLANE, T_MIN
 
 
 def bruteforce_render(
     means, quats, scales, opacities, colors, viewmat, K, width, height,
-    sh_degree=None, background=None, near_plane=0.01, far_plane=1e10, eps2d=0.3,
+    sh_degree=None, background=None, near_plane=NEAR_PLANE, far_plane=FAR_PLANE, eps2d=EPS2D,
 ):
     """All inputs as arrays/tensors (any float dtype). Returns float64 arrays rgb (H,W,3), depth (H,W,1) = sum
     d_i a_i T_i, alpha (H,W,1), and slack (H,W) >= 0, nonzero only for pixels "at the alpha threshold": where
@@ -46,10 +47,10 @@ def bruteforce_render(
     cov_c = np.einsum("ij,njk,lk->nil", R, cov_w, R)
 
     with np.errstate(divide="ignore", invalid="ignore"):
-        limx_p = (width - cx) / fx + 0.3 * (0.5 * width / fx)
-        limx_n = cx / fx + 0.3 * (0.5 * width / fx)
-        limy_p = (height - cy) / fy + 0.3 * (0.5 * height / fy)
-        limy_n = cy / fy + 0.3 * (0.5 * height / fy)
+        limx_p = (width - cx) / fx + FOV_CLAMP_MARGIN * (0.5 * width / fx)
+        limx_n = cx / fx + FOV_CLAMP_MARGIN * (0.5 * width / fx)
+        limy_p = (height - cy) / fy + FOV_CLAMP_MARGIN * (0.5 * height / fy)
+        limy_n = cy / fy + FOV_CLAMP_MARGIN * (0.5 * height / fy)
         u = np.clip(pc[:, 0] / z, -limx_n, limx_p)
         v = np.clip(pc[:, 1] / z, -limy_n, limy_p)
         J = np.zeros((n, 2, 3))
@@ -81,15 +82,15 @@ def bruteforce_render(
             continue
         dx, dy = mx[i] - px, my[i] - py
         power = -0.5 * (inv[i, 0, 0] * dx * dx + inv[i, 1, 1] * dy * dy) - inv[i, 0, 1] * dx * dy
-        alpha = np.minimum(0.99, opacities[i] * np.exp(power))
-        use = (~done) & (power <= 0) & (alpha >= 1.0 / 255.0)
+        alpha = np.minimum(ALPHA_MAX, opacities[i] * np.exp(power))
+        use = (~done) & (power <= 0) & (alpha >= ALPHA_MIN)
         next_T = T * (1.0 - alpha)
-        near_cut = (~done) & (power <= 0) & (np.abs(alpha * 255.0 - 1.0) < 1e-4)
-        near_stop = (~done) & (power <= 0) & (alpha >= 1.0 / 255.0) & (np.abs(next_T * 1e4 - 1.0) < 1e-4)
+        near_cut = (~done) & (power <= 0) & (np.abs(alpha / ALPHA_MIN - 1.0) < 1e-4)
+        near_stop = (~done) & (power <= 0) & (alpha >= ALPHA_MIN) & (np.abs(next_T / T_MIN - 1.0) < 1e-4)
         # Flipping the 1/255 cut changes this Gaussian's term and scales everything behind it by (1 - a): at most
         # 2 a T c_max. Flipping the stop at T = 1e-4 changes at most T c_max.
         slack += c_max * T * (2.0 * alpha * near_cut + near_stop)
-        stop = use & (next_T <= 1e-4)
+        stop = use & (next_T <= T_MIN)
         done |= stop
         use &= ~stop
         w = np.where(use, alpha * T, 0.0)

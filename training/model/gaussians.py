@@ -17,7 +17,7 @@ from dataclasses import dataclass
 
 import torch
 
-SH_C0 = 0.28209479177387814  # Y_0^0; colour = SH_C0 * sh0 + 0.5 at degree 0
+from training.model.sh_constants import SH_C0
 
 
 def num_sh_coeffs(degree: int) -> int:

@@ -16,6 +16,8 @@ import os
 
 import torch
 
+from training.raster.constants import EPS2D, FAR_PLANE, NEAR_PLANE, TILE_SIZE
+
 RENDER_MODES = {
     # mode: (rgb channels, depth channel, depth divided by alpha)
     "RGB": (True, False, False),
@@ -86,10 +88,10 @@ def rasterize(
     sh_degree: int | None = None,
     background: torch.Tensor | None = None,
     render_mode: str = "RGB",
-    near_plane: float = 0.01,
-    far_plane: float = 1e10,
-    eps2d: float = 0.3,
-    tile_size: int = 16,
+    near_plane: float = NEAR_PLANE,
+    far_plane: float = FAR_PLANE,
+    eps2d: float = EPS2D,
+    tile_size: int = TILE_SIZE,
     backend: str = "auto",
 ) -> tuple[torch.Tensor, torch.Tensor, dict]:
     """Render N Gaussians seen by one pinhole camera.

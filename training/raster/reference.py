@@ -7,6 +7,7 @@ Semantics (shared by every backend, as in the graphdeco / gsplat CUDA kernels):
   below 1/255; a Gaussian's screen box is the ellipse where alpha reaches 1/255, so nothing outside it counts;
 - per pixel, Gaussians in increasing z, front to back; a Gaussian that would bring the transmittance T to
   1e-4 or below is not composited and ends the pixel; colour = sum c_i a_i T_i + T_final * background.
+The numbers are defined once in training/raster/constants.py.
 
 Autograd does the backward. Per 16x16 tile the (pixels x Gaussians) alpha matrix is built at once and the
 transmittance is an exclusive cumulative product, so memory grows with the number of tile-Gaussian pairs.
@@ -18,11 +19,9 @@ from dataclasses import dataclass
 
 import torch
 
+from training.model.rotation import quat_to_rotmat
 from training.model.sh import sh_to_rgb
-
-ALPHA_MIN = 1.0 / 255.0
-ALPHA_MAX = 0.99
-T_MIN = 1e-4
+from training.raster.constants import ALPHA_MAX, ALPHA_MIN, FOV_CLAMP_MARGIN, T_MIN
 
 
 @dataclass
@@ -34,20 +33,6 @@ class Projected:
     depths: torch.Tensor  # (N,) camera z
     radii: torch.Tensor  # (N, 2) int32 half-extent of the screen box in x and y; 0 = culled
     valid: torch.Tensor  # (N,) bool
-
-
-def quat_to_rotmat(quats: torch.Tensor) -> torch.Tensor:
-    """(N, 4) wxyz (any norm) -> (N, 3, 3) rotation matrices."""
-    q = quats / quats.norm(dim=-1, keepdim=True).clamp_min(1e-12)
-    w, x, y, z = q.unbind(-1)
-    return torch.stack(
-        [
-            1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y),
-            2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x),
-            2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y),
-        ],
-        dim=-1,
-    ).reshape(-1, 3, 3)
 
 
 def project_gaussians(
@@ -88,10 +73,10 @@ def project_gaussians(
 
     tan_fovx = 0.5 * width / fx
     tan_fovy = 0.5 * height / fy
-    lim_xp = (width - cx) / fx + 0.3 * tan_fovx
-    lim_xn = cx / fx + 0.3 * tan_fovx
-    lim_yp = (height - cy) / fy + 0.3 * tan_fovy
-    lim_yn = cy / fy + 0.3 * tan_fovy
+    lim_xp = (width - cx) / fx + FOV_CLAMP_MARGIN * tan_fovx
+    lim_xn = cx / fx + FOV_CLAMP_MARGIN * tan_fovx
+    lim_yp = (height - cy) / fy + FOV_CLAMP_MARGIN * tan_fovy
+    lim_yn = cy / fy + FOV_CLAMP_MARGIN * tan_fovy
     tx = zs * torch.minimum(torch.maximum(x / zs, -lim_xn), lim_xp)
     ty = zs * torch.minimum(torch.maximum(y / zs, -lim_yn), lim_yp)
     zero = torch.zeros_like(zs)

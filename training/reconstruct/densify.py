@@ -32,7 +32,7 @@ from typing import Callable
 import torch
 
 from training.model.gaussians import Gaussians
-from training.raster.reference import quat_to_rotmat
+from training.model.rotation import quat_to_rotmat
 
 PARAM_NAMES = ("means", "log_scales", "quats", "opacity_logits", "sh0", "shN")
 
