@@ -148,20 +148,15 @@ def run(args) -> int:
         s["report_extra"] = report_extra
         save_checkpoint(ckpt_path, s)
 
-    from tqdm import tqdm
+    from app.progress import ProgressBar
 
-    bar = tqdm(total=cfg.iterations, initial=trainer.step_count, desc="reconstruct", unit="it",
-               disable=args.no_progress, dynamic_ncols=True)
+    bar = ProgressBar(initial=trainer.step_count, desc="reconstruct", disable=args.no_progress,
+                      postfix={"loss": "loss", "psnr": "psnr", "num_gaussians": "n"})
+    trainer.add_listener(bar)
     t_start = time.perf_counter()
-    psnr_ema = None
     try:
-        while trainer.step_count < cfg.iterations:
-            m = trainer.step()
-            if not m["recovered"]:
-                psnr_ema = m["psnr"] if psnr_ema is None else 0.9 * psnr_ema + 0.1 * m["psnr"]
-                bar.set_postfix(loss=f"{m['loss']:.4f}", psnr=f"{psnr_ema:.2f}", n=m["num_gaussians"],
-                                refresh=False)
-            bar.update(1)
+        while not trainer.done:
+            trainer.step()
             if args.checkpoint_every > 0 and trainer.step_count % args.checkpoint_every == 0:
                 checkpoint()
     except KeyboardInterrupt:

@@ -11,6 +11,8 @@ from pathlib import Path
 
 
 def register(sub: argparse._SubParsersAction) -> None:
+    from training.stylize import defaults as D
+
     p = sub.add_parser("stylize", help="stylize a reconstructed scene after a painting (CCFT, colour only)",
                        description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("model", metavar="SCENE.ply", help="Gaussian model reconstructed from DATA (3DGS PLY)")
@@ -18,31 +20,35 @@ def register(sub: argparse._SubParsersAction) -> None:
                                                  "transforms.json)")
     p.add_argument("--style", required=True, help="the painting (any image OpenImageIO reads, at least 64 px)")
     p.add_argument("-o", "--output", required=True, help="output folder")
-    p.add_argument("--preset", choices=("quick", "paper"), default="paper",
-                   help="paper: the paper's schedule at up to 1600 px; quick: 256 px renders, 1/5 of the "
-                        "iterations, for CPUs (default: paper)")
-    p.add_argument("--loss", choices=("ccft", "nnfm", "gram"), default="ccft", help="style loss (default: ccft)")
-    p.add_argument("--tau", type=float, default=0.5, help="CCFT column capacity strength (default 0.5)")
-    p.add_argument("--k", type=int, default=16, help="CCFT nearest style features per rendered feature (16)")
-    p.add_argument("--epsilon", type=float, default=0.05, help="CCFT entropic regularisation (0.05)")
-    p.add_argument("--lambda-guide", type=float, default=1.0, help="cross-view guidance weight (1)")
-    p.add_argument("--sinkhorn-iters", type=int, default=50, help="Sinkhorn iterations per loss (50)")
+    p.add_argument("--preset", choices=D.PRESETS, default="paper",
+                   help=f"paper: the paper's schedule at up to {D.PAPER_MAX_SIDE} px; quick: {D.QUICK_MAX_SIDE} px "
+                        f"renders, {D.QUICK_ITER_FRACTION:g} of the iterations, for CPUs (default: paper)")
+    p.add_argument("--loss", choices=D.LOSSES, default="ccft", help="style loss (default: ccft)")
+    p.add_argument("--tau", type=float, default=D.TAU, help=f"CCFT column capacity strength (default {D.TAU})")
+    p.add_argument("--k", type=int, default=D.K, help=f"CCFT nearest style features per rendered feature ({D.K})")
+    p.add_argument("--epsilon", type=float, default=D.EPSILON, help=f"CCFT entropic regularisation ({D.EPSILON})")
+    p.add_argument("--lambda-guide", type=float, default=D.LAMBDA_GUIDE,
+                   help=f"cross-view guidance weight ({D.LAMBDA_GUIDE:g})")
+    p.add_argument("--sinkhorn-iters", type=int, default=D.SINKHORN_ITERS,
+                   help=f"Sinkhorn iterations per loss ({D.SINKHORN_ITERS})")
     p.add_argument("--lambda-style", type=float, default=None,
-                   help="style loss weight (default: 30 for ccft and nnfm, 1 for gram)")
-    p.add_argument("--lambda-content", type=float, default=0.005, help="content loss weight (0.005)")
+                   help="style loss weight (default: " + ", ".join(f"{v:g} for {k}" for k, v in D.LAMBDA_STYLE.items())
+                        + ")")
+    p.add_argument("--lambda-content", type=float, default=D.LAMBDA_CONTENT,
+                   help=f"content loss weight ({D.LAMBDA_CONTENT})")
     p.add_argument("--lr", type=float, default=None,
-                   help="Adam learning rate of the DC colour (default 0.02)")
+                   help=f"Adam learning rate of the DC colour (default {D.LR})")
     p.add_argument("--iters-per-view", type=int, default=None,
                    help="iterations per view (default: the paper's schedule for the scene kind)")
     p.add_argument("--min-total-iters", type=int, default=None, help="at least this many iterations in all")
-    p.add_argument("--view-order", choices=("dataset", "nearest", "random"), default="nearest",
+    p.add_argument("--view-order", choices=D.VIEW_ORDERS, default="nearest",
                    help="order of the views (default: nearest, a short path by position and direction)")
     p.add_argument("--seed", type=int, default=0, help="seed of the random view order")
     p.add_argument("--virtual-views", type=int, default=0, metavar="N",
                    help="insert N interpolated cameras between consecutive views (default 0)")
     p.add_argument("--dc-only", action="store_true",
                    help="optimise only the DC colour; higher SH orders stay as reconstructed")
-    p.add_argument("--scene-kind", choices=("auto", "forward", "360"), default="auto",
+    p.add_argument("--scene-kind", choices=D.SCENE_KINDS, default="auto",
                    help="schedule: forward-facing or 360 (default: detected from the cameras)")
     p.add_argument("--max-side", type=int, default=None, help="long side of the renders in pixels (default: "
                                                               "the preset's)")
@@ -73,9 +79,17 @@ def run(args: argparse.Namespace) -> int:
     except ValueError as exc:  # the config names its fields; the user typed flags
         name, _, rest = str(exc).partition(" ")
         raise InputError(None, f"--{name.replace('_', '-')} {rest}") from None
+    from app.progress import ProgressBar
+
     t0 = time.perf_counter()
-    report = stylize_to_folder(Path(args.model), Path(args.data), Path(args.style), Path(args.output), config,
-                               vgg_weights=args.vgg_weights, progress=True)
+    bar = ProgressBar(desc="stylizing", postfix={"loss": "loss", "style_loss": "style",
+                                                    "trajectory_position": "view"})
+    try:
+        report = stylize_to_folder(Path(args.model), Path(args.data), Path(args.style), Path(args.output), config,
+                                   vgg_weights=args.vgg_weights, listener=bar,
+                                   log=lambda line: print(line, flush=True))
+    finally:
+        bar.close()
     dist = report["style_distance"]
     print(f"stylized {report['num_views']} views in {report['iterations']} iterations "
           f"({time.perf_counter() - t0:.1f} s); Gram distance to the painting {dist['gram_start']:.4g} -> "

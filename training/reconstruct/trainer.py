@@ -2,7 +2,10 @@
 
 ``Reconstructor(scene, config)`` owns a Gaussian model, its Adam optimizer and a density-control strategy;
 ``step()`` runs one iteration on a random training view and returns its metrics. ``config`` is read afresh at
-every step, so a caller (CLI, viewer, test) may change it between steps, e.g. switch a regularizer off.
+every step, so a caller (CLI, viewer, test) may change it between steps, e.g. switch a regularizer off; from another
+thread, ``update_config(**changes)`` validates at once and applies at the start of the next step, refusing the
+settings only construction may set (``FIXED_AT_START``). ``snapshot()`` gives a viewer a consistent copy of the model
+from any thread; ``add_listener`` delivers the trainer's events (training/core/messages.py).
 
 Recipe (3DGS 2023 plus the paper):
 - Adam (eps 1e-15) with per-parameter learning rates; the means' rate is scaled by the scene extent and decays
@@ -23,23 +26,33 @@ from __future__ import annotations
 
 import copy
 import math
+import threading
 import time
 import warnings
 from dataclasses import asdict, dataclass, field, fields, replace
+from typing import Any
 
 import torch
+
+from training.core.messages import EventSource, ModelSnapshot, checked_config_changes, frozen_array
 
 from training.reconstruct.densify import PARAM_NAMES, DensifyConfig, DensifyStrategy
 from training.model.gaussians import Gaussians
 from training.reconstruct.metrics import evaluate_views, psnr, render_view
-from training.raster.rasterize import resolve_device
+from training.raster.rasterize import BACKENDS, resolve_device
 from training.reconstruct.regularizers import depth_loss, depth_weight, shape_loss, size_loss
 from training.scene.scene import Scene, over_background
 from training.reconstruct.ssim import ssim
 
 PRESETS = ("quick", "standard", "paper")
 BACKGROUNDS = ("black", "white", "random")
+DEPTH_SOURCES = ("sfm", "mono", "none")
+DEVICES = ("auto", "cpu", "cuda")
 MAX_CONSECUTIVE_RECOVERIES = 20
+# Settings that shape the run when the trainer is built (the scene's resolution, the depth targets, the initial model,
+# the device, the background the photos are composited over): update_config refuses them rather than ignore them.
+FIXED_AT_START = ("preset", "downscale", "depth", "mono_depth_model", "device", "background", "random_init_points",
+                  "seed")
 
 
 @dataclass
@@ -99,6 +112,38 @@ class ReconstructConfig:
             raise ValueError(f"unknown preset {name!r}; expected one of {', '.join(PRESETS)}")
         return replace(cfg, **overrides)
 
+    def validate(self) -> None:
+        """ValueError naming the first setting out of its range."""
+        if self.preset not in PRESETS:
+            raise ValueError(f"unknown preset {self.preset!r}; expected one of {', '.join(PRESETS)}")
+        if self.depth not in DEPTH_SOURCES:
+            raise ValueError(f"unknown depth {self.depth!r}; expected one of {', '.join(DEPTH_SOURCES)}")
+        if self.background not in BACKGROUNDS:
+            raise ValueError(f"unknown background {self.background!r}; expected one of {', '.join(BACKGROUNDS)}")
+        if self.backend not in BACKENDS:
+            raise ValueError(f"unknown backend {self.backend!r}; expected one of {', '.join(BACKENDS)}")
+        if self.device not in DEVICES and not str(self.device).startswith("cuda:"):
+            raise ValueError(f"unknown device {self.device!r}; expected one of {', '.join(DEVICES)}")
+        d = self.densify
+        checks = [("iterations", self.iterations >= 1, "at least 1"), ("downscale", self.downscale >= 1, "at least 1"),
+                  ("sh_degree", 0 <= self.sh_degree <= 3, "0..3"), ("sh_interval", self.sh_interval >= 1, "at least 1"),
+                  *[(n, getattr(self, n) > 0, "positive") for n in
+                    ("lr_means_init", "lr_means_final", "lr_sh0", "lr_shN", "lr_opacity", "lr_scales", "lr_quats")],
+                  ("lambda_dssim", 0 <= self.lambda_dssim <= 1, "in [0, 1]"),
+                  *[(n, getattr(self, n) >= 0, "at least 0") for n in
+                    ("lambda_shape", "lambda_s", "lambda_size", "beta1", "beta2", "lambda_depth_start",
+                     "lambda_depth_end")],
+                  ("random_init_points", self.random_init_points >= 1, "at least 1"),
+                  ("snapshot_every", self.snapshot_every >= 0, "at least 0"),
+                  ("densify.interval", d.interval >= 1, "at least 1"),
+                  ("densify.grad_threshold", d.grad_threshold > 0, "positive"),
+                  ("densify.reset_every", d.reset_every >= 0, "at least 0 (0: never)"),
+                  ("densify.max_gaussians", d.max_gaussians is None or d.max_gaussians >= 1, "at least 1")]
+        for name, ok, rule in checks:
+            if not ok:
+                value = getattr(d, name.split(".")[1]) if name.startswith("densify.") else getattr(self, name)
+                raise ValueError(f"{name} must be {rule}, got {value!r}")
+
     def to_dict(self) -> dict:
         return asdict(self)
 
@@ -138,8 +183,7 @@ class Reconstructor:
             raise ValueError("Reconstructor needs a scene with its images loaded")
         if not scene.train_indices:
             raise ValueError("the scene has no training views")
-        if config.background not in BACKGROUNDS:
-            raise ValueError(f"unknown background {config.background!r}; expected one of {', '.join(BACKGROUNDS)}")
+        config.validate()
         self.scene = scene
         self.config = config
         self.extent = float(scene.extent)
@@ -170,7 +214,48 @@ class Reconstructor:
         self.recoveries = 0
         self._consecutive_recoveries = 0
         self.last_timings: dict[str, float] = {}
+        # Threads: step() runs on one; snapshot() and update_config() may come from another. The lock covers every
+        # write to the model's tensors (optimizer step, densification, restore), so a snapshot is never torn.
+        self._model_lock = threading.Lock()
+        self._pending_config: ReconstructConfig | None = None
+        self._version = 0
+        self._last_view_snapshot: ModelSnapshot | None = None
+        self.events = EventSource("reconstruct")
+        self.add_listener = self.events.add_listener
+        self.remove_listener = self.events.remove_listener
         self._snapshot = self._take_snapshot()
+
+    @property
+    def total_iters(self) -> int:
+        return int(self.config.iterations)
+
+    @property
+    def done(self) -> bool:
+        return self.step_count >= self.total_iters
+
+    def update_config(self, **changes: Any) -> ReconstructConfig:
+        """Validate ``changes`` now (ValueError naming the setting) and apply them at the start of the next step;
+        any thread. Returns the config the next step will use."""
+        with self._model_lock:
+            new = checked_config_changes(self._pending_config or self.config, changes, FIXED_AT_START,
+                                         "reconstruction")
+            new.validate()
+            self._pending_config = new
+        return new
+
+    def snapshot(self) -> ModelSnapshot:
+        """A consistent copy of the model as a renderer draws it (activated, float32); any thread."""
+        with self._model_lock:
+            last = self._last_view_snapshot
+            if last is not None and last.version == self._version:
+                return last
+            g = self.gaussians
+            with torch.no_grad():
+                snap = ModelSnapshot(self._version, self._version, self.step_count, frozen_array(g.means),
+                                     frozen_array(g.scales), frozen_array(g.rotations), frozen_array(g.opacities),
+                                     frozen_array(g.sh), g.sh_degree)
+            self._last_view_snapshot = snap
+            return snap
 
     # ----------------------------------------------------------------------------------------------- set-up
     def _make_optimizer(self) -> torch.optim.Adam:
@@ -214,6 +299,9 @@ class Reconstructor:
         """One training iteration. Returns {"step", "loss", "l1", "ssim", "psnr", "depth", "shape", "size",
         "lambda_depth", "num_gaussians", "sh_degree", "view", "cloned", "split", "pruned", "reset",
         "recovered", "times": {"rasterize", "loss", "backward", "optimizer", "densify"} (seconds)}."""
+        with self._model_lock:
+            if self._pending_config is not None:
+                self.config, self._pending_config = self._pending_config, None
         cfg = self.config
         self.step_count += 1
         i = self.step_count
@@ -263,24 +351,34 @@ class Reconstructor:
             return self._recover(i, view, "the loss is not finite", times)
         loss.backward()
         t3 = time.perf_counter()
-        self.optimizer.step()
-        self.optimizer.zero_grad(set_to_none=True)
-        t4 = time.perf_counter()
-        if not self._params_finite():
-            return self._recover(i, view, "the update made parameters non-finite", times)
-        counts = self.strategy.step_post_backward(cfg.densify, i, self.gaussians, self.optimizer, info,
-                                                  cam.width, cam.height, self.generator)
+        with self._model_lock:
+            self.optimizer.step()
+            self.optimizer.zero_grad(set_to_none=True)
+            t4 = time.perf_counter()
+            if not self._params_finite():
+                # restore while still holding the lock: no snapshot may see the non-finite update
+                return self._recover(i, view, "the update made parameters non-finite", times, locked=True)
+            n_before = len(self.gaussians)
+            counts = self.strategy.step_post_backward(cfg.densify, i, self.gaussians, self.optimizer, info,
+                                                      cam.width, cam.height, self.generator)
+            self._version += 1
         t5 = time.perf_counter()
         times.update(rasterize=t1 - t0, loss=t2 - t1, backward=t3 - t2, optimizer=t4 - t3, densify=t5 - t4)
         self.last_timings = times
         self._consecutive_recoveries = 0
         if cfg.snapshot_every > 0 and i % cfg.snapshot_every == 0:
             self._snapshot = self._take_snapshot()
-        return {"step": i, "loss": float(loss.detach()), "l1": float(l1.detach()),
+        result = {"step": i, "loss": float(loss.detach()), "l1": float(l1.detach()),
                 "ssim": float(ssim_val.detach()),
                 "psnr": psnr(rgb.clamp(0, 1), target), "lambda_depth": lam_depth if depth_t is not None else 0.0,
                 **terms, "num_gaussians": len(self.gaussians), "sh_degree": self.active_sh_degree, "view": view,
                 **counts, "recovered": False, "times": times}
+        self.events.emit("step", i, {**result, "total_iters": self.total_iters})
+        if len(self.gaussians) != n_before or any(counts.get(k) for k in ("cloned", "split", "pruned")):
+            self.events.emit("structure", i, {"num_gaussians": len(self.gaussians), **counts})
+        if i == self.total_iters:
+            self.events.emit("finished", i)
+        return result
 
     # ------------------------------------------------------------------------------------------ NaN recovery
     def _take_snapshot(self) -> dict:
@@ -292,25 +390,35 @@ class Reconstructor:
         }
 
     def _restore(self, snap: dict) -> None:
+        """Call with the model lock held."""
         for name, t in snap["params"].items():
             setattr(self.gaussians, name, t.clone().requires_grad_(True))
         self.optimizer = self._make_optimizer()
         self.optimizer.load_state_dict(copy.deepcopy(snap["optimizer"]))
         self.strategy.load_state_dict(snap["strategy"])
+        self._version += 1
 
-    def _recover(self, step: int, view: int, why: str, times: dict) -> dict:
+    def _recover(self, step: int, view: int, why: str, times: dict, locked: bool = False) -> dict:
         self.optimizer.zero_grad(set_to_none=True)
         self._consecutive_recoveries += 1
         self.recoveries += 1
         if self._consecutive_recoveries > MAX_CONSECUTIVE_RECOVERIES:
             raise RuntimeError(f"training diverged: {MAX_CONSECUTIVE_RECOVERIES} steps in a row were not finite "
                                f"(last: {why}); lower the learning rates or check the input")
-        warnings.warn(f"step {step}: {why}; restored the model from step {self._snapshot['step']} and continuing",
-                      RuntimeWarning, stacklevel=3)
-        self._restore(self._snapshot)
+        message = f"step {step}: {why}; restored the model from step {self._snapshot['step']} and continuing"
+        warnings.warn(message, RuntimeWarning, stacklevel=3)
+        if locked:
+            self._restore(self._snapshot)
+        else:
+            with self._model_lock:
+                self._restore(self._snapshot)
         self.last_timings = times
-        return {"step": step, "loss": float("nan"), "psnr": float("nan"), "num_gaussians": len(self.gaussians),
-                "sh_degree": self.active_sh_degree, "view": view, "recovered": True, "times": times}
+        result = {"step": step, "loss": float("nan"), "psnr": float("nan"), "num_gaussians": len(self.gaussians),
+                  "sh_degree": self.active_sh_degree, "view": view, "recovered": True, "times": times}
+        self.events.emit("warning", step, message=message)
+        self.events.emit("structure", step, {"num_gaussians": len(self.gaussians)})
+        self.events.emit("step", step, {**result, "total_iters": self.total_iters})
+        return result
 
     # ------------------------------------------------------------------------------------------- evaluation
     def evaluate(self, indices) -> dict:
@@ -341,10 +449,13 @@ class Reconstructor:
     def load_state_dict(self, state: dict) -> None:
         """Restore a state_dict() (the config is left as this trainer's; build it from state["config"])."""
         params = {k: v.to(self.device) for k, v in state["params"].items()}
-        self.gaussians = Gaussians(**params, sh_degree=int(state["sh_degree"]))
-        for t in self.gaussians.parameters().values():
+        gaussians = Gaussians(**params, sh_degree=int(state["sh_degree"]))
+        for t in gaussians.parameters().values():
             t.requires_grad_(True)
-        self.optimizer = self._make_optimizer()
+        with self._model_lock:
+            self.gaussians = gaussians
+            self.optimizer = self._make_optimizer()
+            self._version += 1
         self.optimizer.load_state_dict(state["optimizer"])
         self.strategy.load_state_dict(state["strategy"])
         self.generator.set_state(state["rng"])

@@ -23,6 +23,8 @@ from dataclasses import dataclass, field
 import torch
 import torch.nn.functional as F
 
+from training.stylize import defaults
+
 # A similarity chunk holds at most this many entries (64 MB in float32).
 DEFAULT_CHUNK_ELEMENTS = 1 << 24
 # b_j for style features that no rendered feature reaches (Algorithm 1); they carry no edges, so it never matters
@@ -189,8 +191,9 @@ def column_statistics(column_mass: torch.Tensor, reachable: torch.Tensor) -> tup
     return util, entropy, norm
 
 
-def ccft_loss(X: torch.Tensor, Y: torch.Tensor, guide: torch.Tensor | None = None, k: int = 16,
-              epsilon: float = 0.05, tau: float = 0.5, lambda_guide: float = 1.0, iters: int = 50,
+def ccft_loss(X: torch.Tensor, Y: torch.Tensor, guide: torch.Tensor | None = None, k: int = defaults.K,
+              epsilon: float = defaults.EPSILON, tau: float = defaults.TAU,
+              lambda_guide: float = defaults.LAMBDA_GUIDE, iters: int = defaults.SINKHORN_ITERS,
               chunk_elements: int = DEFAULT_CHUNK_ELEMENTS, sinkhorn_backend: str = "auto") -> CCFTResult:
     """CCFT loss of rendered features X (n, C) against style features Y (m, C) (Algorithm 1).
 

@@ -29,8 +29,9 @@ def choose_downscale(data: Path, max_side: int) -> int:
 
 
 def stylize_to_folder(model: Path, data: Path, style: Path, out: Path, config: StylizeConfig,
-                      vgg_weights: str | None = None, progress: bool = False) -> dict[str, Any]:
-    """Run the job and return the report (also written to OUT/report.json)."""
+                      vgg_weights: str | None = None, listener=None, log=None) -> dict[str, Any]:
+    """Run the job and return the report (also written to OUT/report.json). ``listener`` receives the stylizer's
+    events (training/core/messages.py); ``log`` (a str -> None callable) gets one line describing the run."""
     from training.core.atomic_write import atomic_open
     from training.scene.image_io import write_image
     from training.model.ply_io import read_ply, write_ply
@@ -51,13 +52,15 @@ def stylize_to_folder(model: Path, data: Path, style: Path, out: Path, config: S
     distance_start = stylizer.style_distance(sh=stylizer.original_sh)
     distance_pre = stylizer.style_distance() if stylizer.pre_transform is not None else distance_start
     stylizer.times.add("style_distance", time.perf_counter() - t0)
-    if progress:
-        print(f"stylize: {len(scene.cameras)} views ({stylizer.kind}), {len(stylizer.trajectory)} in the "
+    if listener is not None:
+        stylizer.add_listener(listener)
+    if log is not None:
+        log(f"stylize: {len(scene.cameras)} views ({stylizer.kind}), {len(stylizer.trajectory)} in the "
               f"trajectory, {stylizer.total_iters} iterations at "
               f"{stylizer.cameras[0].width}x{stylizer.cameras[0].height}; VGG weights: "
-              f"{getattr(stylizer.vgg, 'weights_source', 'given')}", flush=True)
+              f"{getattr(stylizer.vgg, 'weights_source', 'given')}")
     t0 = time.perf_counter()
-    stylizer.run(progress=progress)
+    stylizer.run()
     first = stylizer.history[0] if stylizer.history else None
     stylize_seconds = time.perf_counter() - t0
     utilisation = stylizer.utilisation()

@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import torch
 
+from training.stylize import defaults
 from training.stylize.ccft import DEFAULT_CHUNK_ELEMENTS, column_statistics, ccft_loss, l2_normalise
 
 
@@ -27,8 +28,8 @@ class CCFTStyleLoss:
 
     name = "ccft"
 
-    def __init__(self, k: int = 16, epsilon: float = 0.05, tau: float = 0.5, lambda_guide: float = 1.0,
-                 iters: int = 50, chunk_elements: int = DEFAULT_CHUNK_ELEMENTS):
+    def __init__(self, k: int = defaults.K, epsilon: float = defaults.EPSILON, tau: float = defaults.TAU,
+                 lambda_guide: float = defaults.LAMBDA_GUIDE, iters: int = defaults.SINKHORN_ITERS, chunk_elements: int = DEFAULT_CHUNK_ELEMENTS):
         self.k = k
         self.epsilon = epsilon
         self.tau = tau

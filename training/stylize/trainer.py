@@ -10,12 +10,16 @@ it stays bit-identical. Before the first step, the content images and the Gaussi
 transfer toward the painting; ``finish()`` re-renders every view, refits the transfer from those renders to the
 painting and applies it to the Gaussians (ARF's pre and post colour transfer).
 
-The config may change between steps (the viewer's sliders): loss parameters, weights, learning rate, iterations per
-view and even the loss itself take effect on the next step.
+The config may change between steps (the viewer's sliders): ``update_config(**changes)`` from any thread is
+validated at once and applied at the start of the next step; loss parameters, weights, learning rate, iterations per
+view and even the loss itself may change, while the settings that shape the run (``FIXED_AT_START``) are refused.
+``snapshot()`` gives a viewer a consistent copy of the model from any thread (only the colours are copied anew while
+stylizing); ``add_listener`` delivers the trainer's events (training/core/messages.py).
 """
 
 from __future__ import annotations
 
+import threading
 import time
 from dataclasses import asdict, dataclass, field, replace
 from pathlib import Path
@@ -28,32 +32,25 @@ import torch.nn.functional as F
 from training.stylize.color_transfer import (ColorTransform, apply_to_gaussians, apply_to_image, fit_color_transfer,
                                      foreground_pixels)
 from training.core.errors import InputError
+from training.core.messages import (EventSource, ModelSnapshot, check_cancel, checked_config_changes,
+                                    frozen_array)
 from training.model.gaussians import Gaussians
 from training.raster.rasterize import resolve_device
 from training.scene.scene import Camera, Scene, over_background
 from training.stylize.style_image import check_style_array, halve, style_for_render
-from training.stylize.view_order import VIEW_ORDERS, scene_kind, view_order
+from training.stylize import defaults as D
+from training.stylize.defaults import (FORWARD_ITERS_PER_VIEW, FORWARD_MIN_TOTAL, LOSSES, ORBIT_ITERS_PER_VIEW,
+                                       ORBIT_ITERS_PER_VIEW_MANY, ORBIT_MANY_VIEWS, PAPER_MAX_SIDE, PRESETS,
+                                       QUICK_ITER_FRACTION, QUICK_MAX_SIDE, SCENE_KINDS, SHN_LR_FACTOR, VIEW_ORDERS)
+from training.stylize.view_order import scene_kind, view_order
 from training.stylize.virtual_views import ViewItem, trajectory
 
-LOSSES = ("ccft", "nnfm", "gram")
-PRESETS = ("paper", "quick")
-# The paper's schedule (supplementary, "Additional Implementation Details").
-FORWARD_ITERS_PER_VIEW, FORWARD_MIN_TOTAL = 50, 2000
-ORBIT_ITERS_PER_VIEW, ORBIT_ITERS_PER_VIEW_MANY, ORBIT_MANY_VIEWS = 20, 15, 200
-# quick (CPU): the render's long side and a fraction of the paper's iterations.
-QUICK_MAX_SIDE = 256
-QUICK_ITER_FRACTION = 0.2
-# paper: 3DGS trains on images whose long side is at most 1600 pixels; we render at that resolution too.
-PAPER_MAX_SIDE = 1600
-# Style weight per loss. CCFT: the paper's lambda_CCFT = 30. NNFM's loss is also a mean cosine distance per rendered
-# feature, on the same scale as <T, C>, so it takes the same weight (the ablations then compare the losses, not
-# their weights). The Gram loss (mean squared Gram difference of raw relu3 features) starts around 20-50 on our
-# scenes where <T, C> starts near 0.6: weight 1 keeps the same style-to-content balance.
-DEFAULT_LAMBDA_STYLE = {"ccft": 30.0, "nnfm": 30.0, "gram": 1.0}
-# Adam on the SH DC term: the colour moves by about SH_C0 * lr per step. On fern (quick preset) 0.05 left speckle
-# and over-strong texture (raw Gram distance to the painting 0.73 of the start) where 0.02 gave 0.46.
-DEFAULT_LR = 0.02
-SHN_LR_FACTOR = 1.0 / 20.0  # 3DGS: the higher SH orders learn 20x slower than the DC term
+DEFAULT_LAMBDA_STYLE = D.LAMBDA_STYLE
+DEFAULT_LR = D.LR
+# Settings that shape the run when the Stylizer is built (the cameras, the trajectory, the colour transfer, the
+# device): update_config refuses them rather than ignore them.
+FIXED_AT_START = ("view_order", "virtual_views", "preset", "device", "color_transfer", "background", "scene_kind",
+                  "max_side", "seed")
 MATCH_MIN_INSIDE = 0.5  # at least this fraction of the Gaussians must lie inside some camera's view
 MATCH_MIN_ALPHA = 0.02  # a render whose mean coverage is below this shows (nearly) nothing
 
@@ -63,13 +60,13 @@ class StylizeConfig:
     """Stylization settings; ``None`` means "from the preset / the paper's schedule"."""
 
     loss: str = "ccft"  # ccft | nnfm | gram
-    tau: float = 0.5
-    k: int = 16
-    epsilon: float = 0.05
-    lambda_guide: float = 1.0
-    sinkhorn_iters: int = 50
+    tau: float = D.TAU
+    k: int = D.K
+    epsilon: float = D.EPSILON
+    lambda_guide: float = D.LAMBDA_GUIDE
+    sinkhorn_iters: int = D.SINKHORN_ITERS
     lambda_style: float | None = None  # None: DEFAULT_LAMBDA_STYLE[loss] (30 for CCFT)
-    lambda_content: float = 0.005
+    lambda_content: float = D.LAMBDA_CONTENT
     lr: float | None = None  # Adam learning rate of sh0 (shN: lr / 20); None: DEFAULT_LR
     iters_per_view: int | None = None
     min_total_iters: int | None = None
@@ -92,7 +89,7 @@ class StylizeConfig:
             raise ValueError(f"unknown preset {self.preset!r}; expected one of {', '.join(PRESETS)}")
         if self.view_order not in VIEW_ORDERS:
             raise ValueError(f"unknown view order {self.view_order!r}; expected one of {', '.join(VIEW_ORDERS)}")
-        if self.scene_kind not in ("auto", "forward", "360"):
+        if self.scene_kind not in SCENE_KINDS:
             raise ValueError(f"unknown scene kind {self.scene_kind!r}; expected auto, forward or 360")
         checks = [("k", self.k >= 1, "at least 1"), ("epsilon", self.epsilon > 0, "positive"),
                   ("tau", self.tau > 0, "positive"), ("sinkhorn_iters", self.sinkhorn_iters >= 1, "at least 1"),
@@ -270,6 +267,16 @@ class Stylizer:
         self.last_stats: dict[str, Any] = {}
         self.history: list[dict[str, float]] = []
         self.finished = False
+        # Threads: step() runs on one; snapshot() and update_config() may come from another. The lock covers every
+        # write to the model's tensors (and their replacement), so a snapshot never sees half an update.
+        self._model_lock = threading.Lock()
+        self._pending_config: StylizeConfig | None = None
+        self._version = 0
+        self._geometry_version = 0
+        self._last_snapshot: ModelSnapshot | None = None
+        self.events = EventSource("stylize")
+        self.add_listener = self.events.add_listener
+        self.remove_listener = self.events.remove_listener
 
     # ------------------------------------------------------------------ schedule
     @property
@@ -313,11 +320,13 @@ class Stylizer:
             backend=self.config.backend)
         return image, alpha
 
-    def render_views(self, cameras: list[Camera] | None = None) -> list[tuple[np.ndarray, np.ndarray]]:
-        """(image (H, W, 3), alpha (H, W, 1)) numpy renders of ``cameras`` (default: every scene view)."""
+    def render_views(self, cameras: list[Camera] | None = None, cancel=None) -> list[tuple[np.ndarray, np.ndarray]]:
+        """(image (H, W, 3), alpha (H, W, 1)) numpy renders of ``cameras`` (default: every scene view); ``cancel()``
+        is asked before each view (Cancelled)."""
         out = []
         with torch.no_grad():
             for cam in cameras if cameras is not None else self.cameras:
+                check_cancel(cancel)
                 img, alpha = self.render(cam)
                 out.append((img.clamp(0, 1).float().cpu().numpy(), alpha.float().cpu().numpy()))
         return out
@@ -362,8 +371,21 @@ class Stylizer:
         return feats
 
     # ------------------------------------------------------------------ config sync
+    def update_config(self, **changes: Any) -> StylizeConfig:
+        """Validate ``changes`` now (ValueError naming the setting) and apply them at the start of the next step;
+        any thread. Returns the config the next step will use."""
+        with self._model_lock:
+            base = self._pending_config or self.config
+            new = checked_config_changes(base, changes, FIXED_AT_START, "stylization")
+            new.validate()
+            self._pending_config = new
+        return new
+
     def _sync(self) -> None:
         """Apply the (possibly changed) config: loss object and its parameters, optimiser, learning rate."""
+        with self._model_lock:
+            if self._pending_config is not None:
+                self.config, self._pending_config = self._pending_config, None
         cfg = self.config
         cfg.validate()
         if self.style_loss is None or cfg.loss != self._loss_name:
@@ -376,7 +398,8 @@ class Stylizer:
             if hasattr(self.style_loss, name):
                 setattr(self.style_loss, name, value)
         if self._optimizer is None or cfg.dc_only != self._dc_only:
-            self._make_optimizer()
+            with self._model_lock:
+                self._make_optimizer()
         for group in self._optimizer.param_groups:
             group["lr"] = cfg.learning_rate * group["lr_scale"]
 
@@ -430,7 +453,9 @@ class Stylizer:
         timings["backward"] = time.perf_counter() - t
 
         t = time.perf_counter()
-        self._optimizer.step()
+        with self._model_lock:
+            self._optimizer.step()
+            self._version += 1
         sync()
         timings["optimizer"] = time.perf_counter() - t
         for key, value in timings.items():
@@ -455,46 +480,67 @@ class Stylizer:
 
         self.iteration += 1
         self._iters_on_view += 1
+        self.events.emit("step", self.iteration, {**result, "total_iters": self.total_iters})
         if self._iters_on_view >= self.iters_per_view:
             self._iters_on_view = 0
             self._position = (self._position + 1) % len(self.trajectory)
+            self.events.emit("view", self.iteration, {"trajectory_position": self._position,
+                                                      "view_index": self.current_view.source_index,
+                                                      "virtual": self.current_view.is_virtual})
+        if self.iteration == self.total_iters:
+            self.events.emit("finished", self.iteration)
         return result
 
-    def run(self, progress: bool = False) -> None:
-        """Step until the schedule is done."""
-        bar = None
-        if progress:
-            from tqdm import tqdm
-
-            bar = tqdm(total=self.total_iters, initial=self.iteration, desc="stylizing", unit="it")
+    def run(self, cancel=None) -> None:
+        """Step until the schedule is done (or ``cancel()`` turns true between steps: raises Cancelled)."""
         while not self.done:
-            r = self.step()
-            if bar is not None:
-                bar.set_postfix(loss=f"{r['loss']:.4f}", style=f"{r['style_loss']:.4f}", view=r["trajectory_position"])
-                bar.update(1)
-        if bar is not None:
-            bar.close()
+            check_cancel(cancel)
+            self.step()
+
+    # ------------------------------------------------------------------ the viewer's copy
+    def snapshot(self) -> ModelSnapshot:
+        """A consistent copy of the model as a renderer draws it; any thread. While stylizing only the colours
+        change: their arrays are new, the geometry's are the previous snapshot's."""
+        with self._model_lock:
+            last = self._last_snapshot
+            if last is not None and last.version == self._version:
+                return last
+            g = self.gaussians
+            if last is not None and last.geometry_version == self._geometry_version:
+                geometry = (last.means, last.scales, last.quats, last.opacities)
+            else:
+                geometry = (frozen_array(g.means), frozen_array(self._scales), frozen_array(g.rotations),
+                            frozen_array(self._opacities))
+            snap = ModelSnapshot(self._version, self._geometry_version, self.iteration, *geometry,
+                                 frozen_array(g.sh), g.sh_degree)
+            self._last_snapshot = snap
+            return snap
 
     # ------------------------------------------------------------------ after
-    def finish(self) -> ColorTransform | None:
+    def finish(self, cancel=None) -> ColorTransform | None:
         """ARF's post colour transfer: render every view, fit the map from those renders to the painting, apply it
-        to the Gaussians' colours. Returns the map (None when colour transfer is off)."""
+        to the Gaussians' colours. Returns the map (None when colour transfer is off). ``cancel()`` is asked between
+        views; when it turns true, Cancelled is raised and the colours are left as they were."""
         t0 = time.perf_counter()
-        self.finished = True
         if not self.config.color_transfer:
+            self.finished = True
             return None
-        renders = self.render_views()
+        renders = self.render_views(cancel=cancel)
         pixels = [foreground_pixels(img, a) for img, a in renders]
         pixels = [p for p in pixels if len(p)]
         if not pixels:
             return None
         self.post_transform = fit_color_transfer(pixels, self.style_image.reshape(-1, 3))
-        self.gaussians = apply_to_gaussians(self.gaussians.detached(), self.post_transform)
-        self._optimizer = None  # the colour tensors were replaced: a later step() starts a fresh optimiser
+        with self._model_lock:
+            self.gaussians = apply_to_gaussians(self.gaussians.detached(), self.post_transform)
+            self._optimizer = None  # the colour tensors were replaced: a later step() starts a fresh optimiser
+            self._version += 1
+        self.finished = True
         self.times.add("post_color_transfer", time.perf_counter() - t0)
         return self.post_transform
 
-    def style_distance(self, sh: torch.Tensor | None = None, max_views: int | None = 8) -> dict[str, float]:
+    def style_distance(self, sh: torch.Tensor | None = None, max_views: int | None = 8,
+                       cancel=None) -> dict[str, float]:
         """Mean over the scene's views (at most ``max_views`` of them, evenly spaced: the report's figure should not
         cost as much as the stylization itself) of the Gram distance between the render's features and the painting's (both
         prepared as for the loss): ``gram`` on the raw relu3 features, ``gram_normalised`` on features scaled to
@@ -508,6 +554,7 @@ class Stylizer:
             cameras = [cameras[int(i)] for i in np.linspace(0, len(cameras) - 1, max_views).round()]
         with torch.no_grad():
             for cam in cameras:
+                check_cancel(cancel)
                 image, _ = self.render(cam, sh=sh)
                 f, fs = self.features(image.clamp(0, 1)), self.style_features(cam)
                 totals["gram"] += gram_distance(f, fs)

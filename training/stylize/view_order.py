@@ -21,7 +21,7 @@ import numpy as np
 
 from training.scene.scene import Camera, camera_normalization
 
-VIEW_ORDERS = ("dataset", "nearest", "random")
+from training.stylize.defaults import VIEW_ORDERS  # noqa: F401  (re-exported: callers name the choices from here)
 SCENE_KINDS = ("forward", "360")
 
 # One radian between viewing directions costs as much as moving one scene extent (the cameras' enclosing radius).

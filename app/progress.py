@@ -1,0 +1,47 @@
+"""The console's view of a trainer: a tqdm progress bar fed by the trainer's events, the same stream the viewer
+reads. (The trainers' warnings also go through Python's warnings, which the CLI prints as one line each.)"""
+
+from __future__ import annotations
+
+from training.core.messages import TrainerEvent
+
+
+class ProgressBar:
+    """A listener (``trainer.add_listener(bar)``): "step" events advance the bar and show the metrics named in
+    ``postfix`` (event metric -> label; ``psnr`` is smoothed). The bar appears with the first step, so an error
+    before training leaves no empty bar behind; its total follows the trainer's (a schedule may change live)."""
+
+    def __init__(self, initial: int = 0, desc: str = "", postfix: dict[str, str] | None = None,
+                 disable: bool = False):
+        self.initial, self.desc, self.disable = initial, desc, disable
+        self.postfix = postfix or {}
+        self.bar = None
+        self._psnr_ema: float | None = None
+
+    def __call__(self, event: TrainerEvent) -> None:
+        if event.kind != "step":
+            return
+        m = event.metrics
+        total = int(m.get("total_iters", 0)) or None
+        if self.bar is None:
+            from tqdm import tqdm
+
+            self.bar = tqdm(total=total, initial=self.initial, desc=self.desc, unit="it", disable=self.disable,
+                            dynamic_ncols=True)
+        elif total is not None and total != self.bar.total:
+            self.bar.total = total
+        if not m.get("recovered", 0.0):
+            shown = {}
+            for key, label in self.postfix.items():
+                if key in m:
+                    value = m[key]
+                    if key == "psnr":
+                        self._psnr_ema = value if self._psnr_ema is None else 0.9 * self._psnr_ema + 0.1 * value
+                        value = self._psnr_ema
+                    shown[label] = int(value) if float(value).is_integer() else f"{value:.4g}"
+            self.bar.set_postfix(shown, refresh=False)
+        self.bar.update(max(0, event.step - self.bar.n))
+
+    def close(self) -> None:
+        if self.bar is not None:
+            self.bar.close()
