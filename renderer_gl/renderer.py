@@ -1,0 +1,372 @@
+"""``SplatRenderer``: draws Gaussian splat models into any moderngl framebuffer.
+
+A frame is two passes. The splat pass composites the sorted Gaussians back to front into a float accumulation
+target the size of the (possibly scaled) camera image; the resolve pass turns it into the render mode's picture
+in the caller's framebuffer and viewport (background, depth colour map, ground-truth photo, split divider).
+Overlay lines follow. Models sit in numbered slots: slot 0 the one shown, slot 1 the second model of the split
+view (original left, stylized right).
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass
+
+import numpy as np
+
+import moderngl
+from renderer_gl import constants as C
+from renderer_gl.camera import View, view
+from renderer_gl.overlays import Lines
+from renderer_gl.shaders import source
+from renderer_gl.sort import BackgroundSorter, back_to_front, turned
+from renderer_gl.splats import GPUSplats, SplatArrays
+
+MODES = ("color", "depth", "alpha", "points", "ellipsoids")
+PHOTO_MODES = (None, "blend", "side")
+_SPLAT_MODE = {"color": 0, "alpha": 0, "depth": 1, "ellipsoids": 2}
+_RESOLVE_MODE = {"color": 0, "points": 0, "ellipsoids": 0, "depth": 1, "alpha": 2}
+
+
+@dataclass
+class FrameInfo:
+    """What a ``render`` call did: how many Gaussians it drew and whether (and how long) it sorted."""
+
+    instances: int
+    sorted: bool
+    sort_s: float
+    upload_s: float
+    size: tuple[int, int]
+    depth_range: tuple[float, float] | None = None
+
+
+def _set(prog: moderngl.Program, name: str, value) -> None:
+    # The GLSL compiler drops uniforms a program does not use; setting them must not fail.
+    if name in prog:
+        if isinstance(value, np.ndarray):
+            prog[name].write(np.ascontiguousarray(value, dtype=np.float32).tobytes())
+        else:
+            prog[name].value = value
+
+
+def _mat4(m: np.ndarray) -> np.ndarray:
+    return np.ascontiguousarray(np.asarray(m, dtype=np.float64).T)  # GLSL reads column-major
+
+
+class SplatRenderer:
+    """Real-time renderer of 3D Gaussians; see renderer_gl/__init__.py and docs/renderer.md.
+
+    ``accum_dtype`` is the accumulation target's texel type: "f4" (float32, the default: parity with the
+    training rasterizer), "f2" (half) or "f1" (8-bit, fastest on software GL). ``sort_tolerance_deg``: the view
+    direction may turn this much before the order is recomputed. ``background_sort``: sort on a worker thread
+    and draw with the previous order meanwhile (for an interactive loop; off for exact one-off renders).
+    """
+
+    def __init__(self, ctx: moderngl.Context, accum_dtype: str = "f4", sort_precision: str = "auto",
+                 sort_tolerance_deg: float = 0.1, background_sort: bool = False):
+        if accum_dtype not in ("f1", "f2", "f4"):
+            raise ValueError(f"accum_dtype must be f1, f2 or f4, got {accum_dtype!r}")
+        self.ctx = ctx
+        self.accum_dtype = accum_dtype
+        self.sort_precision = sort_precision
+        self.sort_tolerance_deg = float(sort_tolerance_deg)
+        self._sorter = BackgroundSorter() if background_sort else None
+        self._slots: dict[int, GPUSplats] = {}
+        self._splat_prog = ctx.program(vertex_shader=source("common.glsl", "splat.vert"),
+                                       fragment_shader=source("splat.frag"))
+        self._point_prog = ctx.program(vertex_shader=source("common.glsl", "points.vert"),
+                                       fragment_shader=source("points.frag"))
+        self._resolve_prog = ctx.program(vertex_shader=source("fullscreen.vert"),
+                                         fragment_shader=source("resolve.frag"))
+        self._line_prog = ctx.program(vertex_shader=source("lines.vert"), fragment_shader=source("lines.frag"))
+        corners = np.array([-1, -1, 1, -1, -1, 1, 1, 1], dtype=np.float32)
+        self._corners = ctx.buffer(corners.tobytes())
+        self._fullscreen = ctx.vertex_array(self._resolve_prog, [(self._corners, "2f", "a_corner")])
+        self._vaos: dict[tuple[int, str], tuple[moderngl.Buffer, moderngl.VertexArray]] = {}
+        self._accum = None
+        self._accum_fbo = None
+        self._photo = ctx.texture((1, 1), 3, np.zeros(3, np.float32).tobytes(), dtype="f4")
+        self._line_vbo = None
+        self._line_vao = None
+
+    # ----------------------------------------------------------------------------------------------- models
+    def set_splats(self, means, scales, quats, opacities, sh, sh_degree: int | None = 0, slot: int = 0) -> None:
+        """Upload a whole model into ``slot`` (replacing what was there). See ``SplatArrays`` for the arrays."""
+        arrays = SplatArrays(means, scales, quats, opacities, sh, sh_degree)
+        if slot in self._slots:
+            self._slots[slot].upload(arrays)
+        else:
+            self._slots[slot] = GPUSplats(self.ctx, arrays)
+
+    def update_colors(self, sh, sh_degree: int | None = 0, slot: int = 0) -> None:
+        """Replace only the colours (SH coefficients, or plain RGB with ``sh_degree=None``) of ``slot``."""
+        self._model(slot).update_colors(sh, sh_degree)
+
+    def set_flags(self, flags, slot: int = 0) -> None:
+        """Per-Gaussian uint8 flags for ``slot``: bit 0 selected (tinted), bit 1 hidden; None clears them."""
+        self._model(slot).set_flags(flags)
+
+    def remove(self, slot: int) -> None:
+        if slot in self._slots:
+            self._slots.pop(slot).release()
+            for key in [k for k in self._vaos if k[0] == slot]:
+                self._vaos.pop(key)[1].release()
+
+    def count(self, slot: int = 0) -> int:
+        return self._slots[slot].n if slot in self._slots else 0
+
+    def sh_degree(self, slot: int = 0) -> int:
+        return self._model(slot).sh_degree
+
+    def set_photo(self, image: np.ndarray | None) -> None:
+        """The ground-truth photo for ``photo="blend"|"side"``: (H, W, 3) float in [0, 1] or uint8, top row first."""
+        self._photo.release()
+        if image is None:
+            image = np.zeros((1, 1, 3), np.float32)
+        img = np.asarray(image)
+        img = img.astype(np.float32) / 255.0 if img.dtype == np.uint8 else img.astype(np.float32)
+        img = np.ascontiguousarray(img[..., :3])
+        self._photo = self.ctx.texture((img.shape[1], img.shape[0]), 3, img.tobytes(), dtype="f4")
+
+    def _model(self, slot: int) -> GPUSplats:
+        if slot not in self._slots:
+            raise KeyError(f"no model in slot {slot}")
+        return self._slots[slot]
+
+    # ------------------------------------------------------------------------------------------------ sorting
+    def _ensure_order(self, slot: int, forward: np.ndarray) -> tuple[bool, float, float]:
+        """Re-sort ``slot`` if the view turned past the tolerance. Returns (sorted, sort seconds, upload s)."""
+        model = self._model(slot)
+        if self._sorter is not None:
+            done = self._sorter.take(slot)
+            if done is not None and done[2] == model.version_geometry:
+                t0 = time.perf_counter()
+                model.write_order(done[0], done[1])
+                return True, 0.0, time.perf_counter() - t0
+        if not turned(model.order_forward, forward, self.sort_tolerance_deg):
+            return False, 0.0, 0.0
+        if self._sorter is not None and model.order_forward is not None:
+            self._sorter.submit(slot, model.means, forward, self.sort_precision, model.version_geometry)
+            return False, 0.0, 0.0
+        t0 = time.perf_counter()
+        order = back_to_front(model.means, forward, self.sort_precision)
+        t1 = time.perf_counter()
+        model.write_order(order, forward)
+        return True, t1 - t0, time.perf_counter() - t1
+
+    # ------------------------------------------------------------------------------------------------ drawing
+    def _accum_target(self, size: tuple[int, int]) -> moderngl.Framebuffer:
+        if self._accum is None or self._accum.size != size:
+            if self._accum is not None:
+                self._accum_fbo.release()
+                self._accum.release()
+            self._accum = self.ctx.texture(size, 4, dtype=self.accum_dtype)
+            self._accum_fbo = self.ctx.framebuffer(color_attachments=[self._accum])
+        return self._accum_fbo
+
+    def _vao(self, slot: int, kind: str) -> moderngl.VertexArray:
+        model = self._model(slot)
+        key = (slot, kind)
+        cached = self._vaos.get(key)
+        if cached is not None and cached[0] is model.index_buffer:
+            return cached[1]
+        if cached is not None:
+            cached[1].release()
+        if kind == "splat":
+            vao = self.ctx.vertex_array(self._splat_prog, [(self._corners, "2f", "a_corner"),
+                                                           (model.index_buffer, "u/i", "a_index")])
+        else:
+            vao = self.ctx.vertex_array(self._point_prog, [(model.index_buffer, "u", "a_index")])
+        self._vaos[key] = (model.index_buffer, vao)
+        return vao
+
+    def _draw_slot(self, slot: int, v: View, mode: str, max_sh_degree: int, params: dict) -> int:
+        model = self._model(slot)
+        if model.n == 0:
+            return 0
+        prog = self._point_prog if mode == "points" else self._splat_prog
+        model.bind(prog)
+        _set(prog, "u_sh_degree", int(min(max_sh_degree, model.sh_degree)))
+        _set(prog, "u_view", _mat4(v.world_to_camera))
+        _set(prog, "u_campos", tuple(float(x) for x in v.center))
+        _set(prog, "u_intr", (v.fx, v.fy, v.cx, v.cy))
+        _set(prog, "u_size", (float(v.width), float(v.height)))
+        _set(prog, "u_lim", v.jacobian_limits())
+        _set(prog, "u_near", params["near"])
+        _set(prog, "u_far", params["far"])
+        _set(prog, "u_eps2d", params["eps2d"])
+        _set(prog, "u_tint", params["tint"])
+        if mode == "points":
+            _set(prog, "u_point_size", params["point_size"])
+            self.ctx.enable(moderngl.PROGRAM_POINT_SIZE)
+            self._vao(slot, "points").render(moderngl.POINTS, vertices=model.n)
+        else:
+            _set(prog, "u_mode", _SPLAT_MODE[mode])
+            _set(prog, "u_outline_sigma", params["outline_sigma"])
+            self._vao(slot, "splat").render(moderngl.TRIANGLE_STRIP, vertices=4, instances=model.n)
+        return model.n
+
+    def splat_pass(self, camera, mode: str = "color", *, slot: int = 0, split: float | None = None,
+                   max_sh_degree: int = 3, scale: float = 1.0, near: float = C.NEAR_PLANE,
+                   far: float = C.FAR_PLANE, eps2d: float = C.EPS2D, tint=(1.0, 0.35, 0.1, 0.6),
+                   point_size: float = 2.0, outline_sigma: float = 2.0) -> FrameInfo:
+        """Composite into the accumulation target only (``render`` and ``render_arrays`` call this)."""
+        if mode not in MODES:
+            raise ValueError(f"unknown render mode {mode!r}; expected one of {', '.join(MODES)}")
+        v = view(camera)
+        if scale != 1.0:
+            v = v.scaled(scale)
+        fbo = self._accum_target((v.width, v.height))
+        fbo.use()
+        fbo.viewport = (0, 0, v.width, v.height)
+        fbo.clear(0.0, 0.0, 0.0, 0.0)
+        ctx = self.ctx
+        ctx.disable(moderngl.DEPTH_TEST | moderngl.CULL_FACE)
+        ctx.enable(moderngl.BLEND)
+        ctx.blend_equation = moderngl.FUNC_ADD
+        ctx.blend_func = moderngl.ONE, moderngl.ONE_MINUS_SRC_ALPHA
+        params = dict(near=float(near), far=float(far), eps2d=float(eps2d), tint=tuple(map(float, tint)),
+                      point_size=float(point_size), outline_sigma=float(outline_sigma))
+        if split is None:
+            parts = [(slot, None)]
+        else:
+            x = int(round(np.clip(split, 0.0, 1.0) * v.width))
+            parts = [(0, (0, 0, x, v.height)), (1, (x, 0, v.width - x, v.height))]
+        forward = v.forward
+        info = FrameInfo(0, False, 0.0, 0.0, (v.width, v.height))
+        try:
+            for s, scissor in parts:
+                if s not in self._slots or (scissor is not None and scissor[2] <= 0):
+                    continue
+                did, t_sort, t_up = self._ensure_order(s, forward)
+                info.sorted |= did
+                info.sort_s += t_sort
+                info.upload_s += t_up
+                ctx.scissor = scissor
+                info.instances += self._draw_slot(s, v, mode, max_sh_degree, params)
+        finally:
+            ctx.scissor = None
+            ctx.disable(moderngl.BLEND)
+        return info
+
+    def depth_range(self, camera, slot: int = 0, near: float = C.NEAR_PLANE) -> tuple[float, float]:
+        """The 2nd to 98th percentile of camera depths of the Gaussians in front of ``camera``."""
+        v = view(camera)
+        model = self._model(slot)
+        R, t = v.world_to_camera[:3, :3], v.world_to_camera[:3, 3]
+        z = model.means @ R[2].astype(np.float32) + np.float32(t[2])
+        z = z[z >= near]
+        if len(z) == 0:
+            return (near, near + 1.0)
+        lo, hi = np.percentile(z, [2.0, 98.0])
+        return (float(lo), float(max(hi, lo + 1e-6)))
+
+    def render(self, camera, framebuffer: moderngl.Framebuffer, *, viewport=None, mode: str = "color",
+               background=(0.0, 0.0, 0.0), slot: int = 0, split: float | None = None, max_sh_degree: int = 3,
+               scale: float = 1.0, depth_range=None, photo: str | None = None, photo_alpha: float = 0.5,
+               overlays: Lines | list | None = None, divider_color=(1.0, 1.0, 1.0, 0.9), **splat_params
+               ) -> FrameInfo:
+        """Draw ``camera``'s view of the model(s) into ``framebuffer`` (its whole area, or ``viewport``
+        = (x, y, w, h) in GL pixels, bottom-left origin).
+
+        mode: color | depth (expected depth, colour-mapped over ``depth_range``, default the 2-98th percentile
+        of visible depths) | alpha (accumulated opacity, grey) | points (centres) | ellipsoids (outlines at
+        ``outline_sigma``). split: None, or the divider position in 0..1: slot 0 left of it, slot 1 right.
+        scale: resolution factor of the splat pass (e.g. 0.5 while the camera moves), upsampled linearly.
+        photo: None | "blend" (mixed with ``photo_alpha``) | "side" (render left half, photo right half) using
+        the image given to ``set_photo``. overlays: ``Lines`` (or a list of them) drawn on top.
+        Other keywords (near, far, eps2d, tint, point_size, outline_sigma) go to ``splat_pass``.
+        """
+        if photo not in PHOTO_MODES:
+            raise ValueError(f"unknown photo mode {photo!r}; expected blend, side or None")
+        v = view(camera)
+        info = self.splat_pass(v, mode, slot=slot, split=split, max_sh_degree=max_sh_degree, scale=scale,
+                               **splat_params)
+        if mode == "depth":
+            if depth_range is None:
+                depth_range = self.depth_range(v, slot if split is None else 0)
+            info.depth_range = tuple(map(float, depth_range))
+        x, y, w, h = viewport if viewport is not None else (0, 0, *framebuffer.size)
+        rects = [(x, y, w, h)] if photo != "side" else [(x, y, w // 2, h), (x + w // 2, y, w - w // 2, h)]
+        framebuffer.use()
+        self.ctx.disable(moderngl.BLEND | moderngl.DEPTH_TEST)
+        self._accum.filter = (moderngl.LINEAR, moderngl.LINEAR)
+        self._accum.use(location=0)
+        self._photo.use(location=1)
+        prog = self._resolve_prog
+        _set(prog, "u_accum", 0)
+        _set(prog, "u_photo", 1)
+        _set(prog, "u_background", tuple(float(c) for c in background[:3]))
+        _set(prog, "u_depth_range", tuple(depth_range) if depth_range is not None else (0.0, 1.0))
+        _set(prog, "u_divider_color", tuple(map(float, divider_color)))
+        for i, rect in enumerate(rects):
+            framebuffer.viewport = rect
+            photo_only = photo == "side" and i == 1
+            _set(prog, "u_mode", 3 if photo_only else _RESOLVE_MODE[mode])
+            _set(prog, "u_photo_alpha", float(photo_alpha) if photo == "blend" else 0.0)
+            _set(prog, "u_split", float(split) if split is not None and not photo_only else -1.0)
+            _set(prog, "u_target_size", (float(rect[2]), float(rect[3])))
+            self._fullscreen.render(moderngl.TRIANGLE_STRIP)
+        if overlays is not None:
+            framebuffer.viewport = rects[0]
+            self.draw_lines(v, overlays, splat_params.get("near", C.NEAR_PLANE))
+        framebuffer.viewport = (x, y, w, h)
+        return info
+
+    def draw_lines(self, camera, lines: Lines | list, near: float = C.NEAR_PLANE, far: float = 1e4) -> None:
+        """Draw world-space ``lines`` as ``camera`` sees them into the bound framebuffer and viewport."""
+        if isinstance(lines, (list, tuple)):
+            lines = Lines.join(list(lines))
+        if len(lines.segments) == 0:
+            return
+        data = lines.vertex_data().tobytes()
+        if self._line_vbo is None or self._line_vbo.size < len(data):
+            if self._line_vbo is not None:
+                self._line_vao.release()
+                self._line_vbo.release()
+            self._line_vbo = self.ctx.buffer(reserve=max(len(data), 4096), dynamic=True)
+            self._line_vao = self.ctx.vertex_array(self._line_prog,
+                                                   [(self._line_vbo, "3f 4f", "a_pos", "a_color")])
+        self._line_vbo.write(data)
+        _set(self._line_prog, "u_clip_from_world", _mat4(view(camera).clip_from_world(near, far)))
+        self.ctx.enable(moderngl.BLEND)
+        self.ctx.blend_func = moderngl.SRC_ALPHA, moderngl.ONE_MINUS_SRC_ALPHA
+        self._line_vao.render(moderngl.LINES, vertices=2 * len(lines.segments))
+        self.ctx.disable(moderngl.BLEND)
+
+    def render_arrays(self, camera, outputs=("rgb", "alpha"), *, background=(0.0, 0.0, 0.0), slot: int = 0,
+                      max_sh_degree: int = 3, **splat_params) -> dict[str, np.ndarray]:
+        """Float images straight from the accumulation target, top row first, no 8-bit rounding:
+        "rgb" (H, W, 3) over ``background``, "alpha" (H, W), "depth" (H, W) expected depth (sum z a T / alpha;
+        0 where nothing was drawn). This is what tests and EXR output read."""
+        out = {}
+        if "rgb" in outputs or "alpha" in outputs:
+            self.splat_pass(camera, "color", slot=slot, max_sh_degree=max_sh_degree, **splat_params)
+            acc = self._read_accum()
+            if "rgb" in outputs:
+                out["rgb"] = acc[..., :3] + (1.0 - acc[..., 3:4]) * np.asarray(background, np.float32)[:3]
+            if "alpha" in outputs:
+                out["alpha"] = acc[..., 3].copy()
+        if "depth" in outputs:
+            self.splat_pass(camera, "depth", slot=slot, max_sh_degree=max_sh_degree, **splat_params)
+            acc = self._read_accum()
+            a = acc[..., 3]
+            out["depth"] = np.where(a > 1e-6, acc[..., 0] / np.maximum(a, 1e-10), 0.0).astype(np.float32)
+        return out
+
+    def _read_accum(self) -> np.ndarray:
+        w, h = self._accum.size
+        dtype = {"f4": np.float32, "f2": np.float16, "f1": np.uint8}[self.accum_dtype]
+        arr = np.frombuffer(self._accum.read(), dtype=dtype).reshape(h, w, 4)
+        arr = arr.astype(np.float32) / (255.0 if dtype == np.uint8 else 1.0)
+        return np.ascontiguousarray(arr[::-1])
+
+    def release(self) -> None:
+        for s in list(self._slots):
+            self.remove(s)
+        if self._sorter is not None:
+            self._sorter.close()
+        for obj in (self._accum_fbo, self._accum, self._photo, self._line_vao, self._line_vbo, self._fullscreen,
+                    self._corners, self._splat_prog, self._point_prog, self._resolve_prog, self._line_prog):
+            if obj is not None:
+                obj.release()

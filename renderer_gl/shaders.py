@@ -1,0 +1,30 @@
+"""Loads the GLSL sources shipped in renderer_gl/shaders and prefixes them with the shared constants, so the
+shaders and the training rasterizer take their numbers from one place (renderer_gl/constants.py)."""
+
+from __future__ import annotations
+
+import functools
+from pathlib import Path
+
+from renderer_gl import constants as C
+
+SHADER_DIR = Path(__file__).parent / "shaders"
+
+
+def _defines() -> str:
+    lines = [
+        f"#define ALPHA_MIN {C.ALPHA_MIN!r}",
+        f"#define ALPHA_MAX {C.ALPHA_MAX!r}",
+        f"#define SH_C0 {C.SH_C0!r}",
+        f"#define SH_C1 {C.SH_C1!r}",
+    ]
+    lines += [f"#define SH_C2_{i} {v!r}" for i, v in enumerate(C.SH_C2)]
+    lines += [f"#define SH_C3_{i} {v!r}" for i, v in enumerate(C.SH_C3)]
+    return "\n".join(lines) + "\n"
+
+
+@functools.lru_cache(maxsize=None)
+def source(*names: str, version: int = 330) -> str:
+    """The named files concatenated after a #version line and the constant defines."""
+    body = "\n".join((SHADER_DIR / name).read_text(encoding="utf-8") for name in names)
+    return f"#version {version} core\n{_defines()}#line 1\n{body}"
