@@ -18,7 +18,7 @@ import moderngl
 from renderer_gl import constants as C
 from renderer_gl.camera import View, view
 from renderer_gl.overlays import Lines
-from renderer_gl.shaders import source
+from renderer_gl.shader_source import source
 from renderer_gl.sort import BackgroundSorter, back_to_front, turned
 from renderer_gl.splats import GPUSplats, SplatArrays
 
@@ -72,13 +72,14 @@ class SplatRenderer:
         self.sort_tolerance_deg = float(sort_tolerance_deg)
         self._sorter = BackgroundSorter() if background_sort else None
         self._slots: dict[int, GPUSplats] = {}
-        self._splat_prog = ctx.program(vertex_shader=source("common.glsl", "splat.vert"),
-                                       fragment_shader=source("splat.frag"))
-        self._point_prog = ctx.program(vertex_shader=source("common.glsl", "points.vert"),
-                                       fragment_shader=source("points.frag"))
-        self._resolve_prog = ctx.program(vertex_shader=source("fullscreen.vert"),
-                                         fragment_shader=source("resolve.frag"))
-        self._line_prog = ctx.program(vertex_shader=source("lines.vert"), fragment_shader=source("lines.frag"))
+        self._splat_prog = ctx.program(vertex_shader=source("common.glsl", "splat.vert.glsl"),
+                                       fragment_shader=source("splat.frag.glsl"))
+        self._point_prog = ctx.program(vertex_shader=source("common.glsl", "points.vert.glsl"),
+                                       fragment_shader=source("points.frag.glsl"))
+        self._resolve_prog = ctx.program(vertex_shader=source("fullscreen.vert.glsl"),
+                                         fragment_shader=source("resolve.frag.glsl"))
+        self._line_prog = ctx.program(vertex_shader=source("lines.vert.glsl"),
+                                      fragment_shader=source("lines.frag.glsl"))
         corners = np.array([-1, -1, 1, -1, -1, 1, 1, 1], dtype=np.float32)
         self._corners = ctx.buffer(corners.tobytes())
         self._fullscreen = ctx.vertex_array(self._resolve_prog, [(self._corners, "2f", "a_corner")])

@@ -1,5 +1,5 @@
 // Shared by the splat and point programs: fetching a Gaussian's parameters from the data textures and
-// evaluating its colour. Defines (ALPHA_MIN, ALPHA_MAX, SH_C*) are prepended by renderer_gl/shaders.py.
+// evaluating its colour. Defines (ALPHA_MIN, ALPHA_MAX, SH_C*) are prepended by renderer_gl/shader_source.py.
 
 uniform sampler2D u_geom;   // 3 RGBA32F texels per Gaussian: (mean, opacity), (quat wxyz), (scale, 0)
 uniform sampler2D u_sh;     // u_sh_stride texels per Gaussian: coefficients flattened k-major, rgb per k
