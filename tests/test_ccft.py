@@ -11,8 +11,6 @@ import torch
 
 from training.stylize.ccft import ccft_loss, gathered_row_dot, l2_normalise, transport_cost
 
-ot = pytest.importorskip("ot", reason="POT is the reference for the transport plan (pip install POT)")
-
 
 def relu_features(n: int, c: int, seed: int, dtype=torch.float64) -> torch.Tensor:
     """ReLU-like non-negative features, as VGG's relu3_x are."""
@@ -20,7 +18,14 @@ def relu_features(n: int, c: int, seed: int, dtype=torch.float64) -> torch.Tenso
     return torch.relu(torch.randn(n, c, generator=g, dtype=dtype) + 0.2)
 
 
-def pot_plan(result, n: int, epsilon: float, tau: float, iters: int, columns: np.ndarray | None = None) -> np.ndarray:
+@pytest.fixture
+def ot():
+    """POT, for the tests that compare with it: only they skip where it is not installed."""
+    return pytest.importorskip("ot", reason="POT is the reference for the transport plan (pip install POT)")
+
+
+def pot_plan(ot, result, n: int, epsilon: float, tau: float, iters: int,
+             columns: np.ndarray | None = None) -> np.ndarray:
     """POT's semi-unbalanced Sinkhorn on the same support: dense cost with 1e3 off the support.
 
     columns: restrict the problem to these style features (the reachable ones): POT stops at a column with zero
@@ -51,12 +56,12 @@ BACKENDS = ["numba", "torch"]
 
 @pytest.mark.parametrize("backend", BACKENDS)
 @pytest.mark.parametrize("epsilon,tau,iters", [(0.05, 0.5, 50), (0.01, 0.1, 50), (0.05, 1.0, 100), (0.1, 0.01, 30)])
-def test_plan_equals_pot(epsilon, tau, iters, backend):
+def test_plan_equals_pot(epsilon, tau, iters, backend, ot):
     n, m, c = 300, 200, 64
     X, Y = relu_features(n, c, 1), relu_features(m, c, 2)
     r = ccft_loss(X, Y, k=16, epsilon=epsilon, tau=tau, iters=iters, sinkhorn_backend=backend)
     assert bool(r.reachable.all()), "this problem is meant to reach every column"
-    P = pot_plan(r, n, epsilon, tau, iters)
+    P = pot_plan(ot, r, n, epsilon, tau, iters)
     D = dense_plan(r, n, m)
     assert np.abs(P - D).max() <= 1e-10
     assert P.max() > 1e-4  # a real plan, not two zero matrices
@@ -71,7 +76,7 @@ def dense_cost(r, n, m):
 
 
 @pytest.mark.parametrize("backend", BACKENDS)
-def test_plan_equals_pot_with_unreachable_columns_and_guide(backend):
+def test_plan_equals_pot_with_unreachable_columns_and_guide(backend, ot):
     n, m, c = 120, 400, 32
     X, Y = relu_features(n, c, 3), relu_features(m, c, 4)
     first = ccft_loss(X, Y, k=8, epsilon=0.05, tau=0.5, iters=50, sinkhorn_backend=backend)
@@ -81,7 +86,7 @@ def test_plan_equals_pot_with_unreachable_columns_and_guide(backend):
     reach = r.reachable.numpy()
     assert 0 < reach.sum() < m  # some style features are unreachable
     cols = np.flatnonzero(reach)
-    P = pot_plan(r, n, 0.05, 0.5, 50, columns=cols)
+    P = pot_plan(ot, r, n, 0.05, 0.5, 50, columns=cols)
     D = dense_plan(r, n, m)
     assert np.abs(P - D[:, cols]).max() <= 1e-10
     assert np.all(D[:, ~reach] == 0)
