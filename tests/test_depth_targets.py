@@ -38,10 +38,12 @@ def test_projection_with_a_rotated_translated_camera():
     w2c[:3, :3] = R
     w2c[:3, 3] = [0.0, 0.0, 3.0]
     cam = Camera("b.png", 20, 10, 5.0, 5.0, 10.0, 5.0, w2c)
-    px, py, z = project_points(np.array([[2.0, 1.0, 3.0]]), cam)  # camera coords (-3+... ) computed below
+    px, py, z = project_points(np.array([[2.0, 1.0, 3.0]]), cam)
     pc = R @ np.array([2.0, 1.0, 3.0]) + [0.0, 0.0, 3.0]   # (-3, 1, 5)
     assert z[0] == pytest.approx(pc[2])
     assert px[0] == int(np.floor(5.0 * pc[0] / pc[2] + 10.0)) and py[0] == int(np.floor(5.0 * pc[1] / pc[2] + 5.0))
+    # by hand: camera coordinates (-3, 1, 5), u = 5 * (-3/5) + 10 = 7, v = 5 * (1/5) + 5 = 6
+    assert (int(px[0]), int(py[0]), float(z[0])) == (7, 6, 5.0)
 
 
 def test_inverse_depth_alignment_recovers_scale_and_shift():

@@ -10,8 +10,8 @@ import pytest
 import torch
 
 from training.core.errors import InputError
-from training.model.gaussian_init import (INITIAL_OPACITY, MIN_SCALE_RELATIVE, RANDOM_NEAR, gaussians_from_points,
-                                    gaussians_random, random_view_points)
+from training.model.gaussian_init import (MIN_SCALE_RELATIVE, RANDOM_NEAR, gaussians_from_points, gaussians_random,
+                                          random_view_points)
 from training.model.gaussians import sh0_to_rgb
 from training.scene.scene import Camera, Scene
 
@@ -36,7 +36,7 @@ def test_from_points_matches_3dgs_init(degree):
         np.testing.assert_allclose(g.scales[:, axis].double().numpy(), expect, rtol=1e-5)
     np.testing.assert_allclose(g.means.numpy(), pts, rtol=1e-6)
     assert torch.equal(g.rotations, torch.tensor([[1.0, 0, 0, 0]]).expand(300, 4))
-    np.testing.assert_allclose(g.opacities.numpy(), INITIAL_OPACITY, rtol=1e-6)
+    np.testing.assert_allclose(g.opacities.numpy(), 0.1, rtol=1e-6)  # 3DGS: inverse_sigmoid(0.1)
     np.testing.assert_allclose(sh0_to_rgb(g.sh0[:, 0]).numpy(), cols, atol=1e-6)
     assert g.shN.shape == (300, (degree + 1) ** 2 - 1, 3) and not g.shN.any()
 

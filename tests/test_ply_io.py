@@ -10,7 +10,13 @@ import torch
 
 from training.core.errors import InputError
 from training.model.gaussians import Gaussians, num_sh_coeffs
-from training.model.ply_io import STANDARD_ATTRIBUTES, read_ply, write_ply
+from training.model.ply_io import read_ply, write_ply
+
+# The layout the reference 3DGS implementation writes (its save_ply), spelled out here rather than taken from
+# ply_io: a reordered or renamed attribute there must fail this test, since other tools read these names.
+STANDARD_3DGS_ATTRIBUTES = (["x", "y", "z", "nx", "ny", "nz", "f_dc_0", "f_dc_1", "f_dc_2"]
+                            + [f"f_rest_{i}" for i in range(45)]
+                            + ["opacity", "scale_0", "scale_1", "scale_2", "rot_0", "rot_1", "rot_2", "rot_3"])
 
 
 def random_gaussians(n: int, degree: int, seed: int = 0) -> Gaussians:
@@ -49,7 +55,7 @@ def test_plyfile_sees_the_standard_layout(tmp_path, degree):
     assert [e.name for e in ply.elements] == ["vertex"]
     v = ply["vertex"]
     names = [p.name for p in v.properties]
-    assert names == STANDARD_ATTRIBUTES
+    assert names == STANDARD_3DGS_ATTRIBUTES
     assert len([n for n in names if n.startswith("f_rest_")]) == 45
     assert all(v[n].dtype == np.float32 for n in names)
     assert v.count == 50

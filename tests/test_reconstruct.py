@@ -22,6 +22,33 @@ def scene():
     return Scene(d.cameras, d.images, points=d.points, point_colors=d.point_colors)
 
 
+def test_defaults_are_the_papers_figures():
+    """Hard-coded from the paper, not read from the code: a wrong constant there must fail here.
+
+    Main paper, "Implementation Details": {lambda_s, beta1, beta2, lambda_shape, lambda_size} = {3.5, 0.1, 0.001,
+    10, 1}, lambda_depth decays exponentially from 1 to 0.01. Supplementary, "Additional Implementation Details":
+    reconstruction uses the original 3DGS's default settings (its 30k-iteration schedule: densification from
+    iteration 500 to 15,000 every 100 with a gradient threshold of 0.0002, opacity reset every 3,000, one more SH
+    degree every 1,000, D-SSIM weight 0.2)."""
+    cfg = ReconstructConfig()
+    assert (cfg.lambda_s, cfg.beta1, cfg.beta2, cfg.lambda_shape, cfg.lambda_size) == (3.5, 0.1, 0.001, 10, 1)
+    assert (cfg.lambda_depth_start, cfg.lambda_depth_end) == (1.0, 0.01)
+    paper = ReconstructConfig.from_preset("paper")
+    assert (paper.iterations, paper.sh_interval, paper.lambda_dssim) == (30_000, 1000, 0.2)
+    d = paper.densify
+    assert (d.start, d.stop, d.interval, d.reset_every, d.grad_threshold) == (500, 15_000, 100, 3000, 0.0002)
+    assert d.percent_dense == 0.01 and d.enabled and d.max_gaussians is None
+    assert (paper.lr_means_init, paper.lr_means_final, paper.lr_sh0, paper.lr_scales, paper.lr_quats) == (
+        1.6e-4, 1.6e-6, 0.0025, 0.005, 0.001)
+    assert paper.lr_shN == pytest.approx(0.0025 / 20)
+    # the presets shorten the schedule; the regularizers are the paper's in every one
+    for name in ("quick", "standard"):
+        short = ReconstructConfig.from_preset(name)
+        assert short.iterations < 30_000
+        assert (short.lambda_s, short.beta1, short.beta2, short.lambda_shape, short.lambda_size) == (
+            3.5, 0.1, 0.001, 10, 1)
+
+
 def _cfg(**kw):
     base = dict(iterations=300, sh_interval=100, device="cpu",
                 densify=DensifyConfig(start=50, stop=250, interval=50, reset_every=0, max_gaussians=2000))

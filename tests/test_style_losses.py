@@ -8,7 +8,7 @@ import pytest
 import torch
 import torch.nn.functional as F
 
-import training.stylize.trainer.vgg_weights as vw
+import training.stylize.vgg_weights as vw
 from training.stylize.style_losses import CCFTStyleLoss, GramStyleLoss, NNFMStyleLoss, make_style_loss
 from training.stylize.vgg_features import VGGFeatures
 
@@ -81,7 +81,7 @@ def test_nnfm_is_the_mean_nearest_cosine_distance(feats):
     torch.testing.assert_close(g, g_ref, rtol=1e-9, atol=1e-12)
 
 
-def test_gram_loss_matches_definition_and_vanishes_on_itself(feats):
+def test_gram_loss_matches_definition_and_sees_only_feature_statistics(feats):
     photo, _, style = feats
     loss, stats = GramStyleLoss()(photo, style)
     Fr = photo[0].flatten(1).double()
@@ -90,6 +90,22 @@ def test_gram_loss_matches_definition_and_vanishes_on_itself(feats):
     assert abs(float(loss) - float(ref)) <= 1e-4 * float(ref)
     assert stats["loss"] == pytest.approx(float(loss))
     assert float(GramStyleLoss()(style, style)[0]) == 0.0
+    # Another image with the painting's feature statistics: its pixels shuffled and tiled 2 x 2. Its Gram matrix
+    # (normalised by the pixel count) is the painting's, so the loss must vanish to rounding; a loss that looked at
+    # positions, or normalised by anything but the pixel count, would not.
+    g = torch.Generator().manual_seed(0)
+    c, h, w = style.shape[1:]
+    shuffled = style.flatten(2)[:, :, torch.randperm(h * w, generator=g)].reshape(1, c, h, w)
+    same_stats = shuffled.repeat(1, 1, 2, 2)
+    assert float(GramStyleLoss()(same_stats, style)[0]) <= 1e-6 * float(ref)
+    # The gradient reaches the render's features only, and it is that of the definition.
+    X = photo.double().requires_grad_(True)
+    S = style.double().requires_grad_(True)
+    (gx, gs) = torch.autograd.grad(GramStyleLoss()(X, S)[0], (X, S), allow_unused=True)
+    Xf = X[0].flatten(1)
+    (gx_ref,) = torch.autograd.grad(((Xf @ Xf.t() / Xf.shape[1] - Fs @ Fs.t() / Fs.shape[1]) ** 2).mean(), X)
+    assert gs is None or not gs.any()
+    torch.testing.assert_close(gx, gx_ref, rtol=1e-9, atol=1e-15)
 
 
 def test_ccft_interface_keeps_the_guide_between_views(feats):

@@ -17,7 +17,7 @@ import pytest
 import torch
 import torch.nn.functional as F
 
-import training.stylize.trainer.vgg_weights as vw
+import training.stylize.vgg_weights as vw
 from training.core.errors import InputError
 from training.stylize.vgg_features import VGGFeatures, load_vgg16_features
 

@@ -94,6 +94,10 @@ def test_random_order_is_seeded_permutation_and_dataset_is_identity():
     assert view_order(cams, "dataset") == list(range(10))
     r1, r2 = view_order(cams, "random", seed=5), random_order(10, seed=5)
     assert r1 == r2 and sorted(r1) == list(range(10)) and r1 != list(range(10))
+    # The seed decides the order: the same one again repeats it, others give other orders (not a fixed shuffle).
+    assert view_order(cams, "random", seed=5) == r1
+    others = {tuple(view_order(cams, "random", seed=s)) for s in range(6, 12)}
+    assert tuple(r1) not in others and len(others) == 6
     with pytest.raises(ValueError):
         view_order(cams, "spiral")
 
