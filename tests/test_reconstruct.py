@@ -82,7 +82,6 @@ def test_config_changes_between_steps(scene):
     assert r.step()["size"] > 0
 
 
-@pytest.mark.slow
 def test_nan_in_parameters_is_restored_with_a_warning(scene, tmp_path):
     r = Reconstructor(scene, _cfg(iterations=50, snapshot_every=5))
     for _ in range(10):

@@ -66,7 +66,6 @@ def test_cli_writes_ply_report_and_resumes(demo_folder, tmp_path, capsys):
     assert report2["seconds"] > report["seconds"]  # the resumed run's time adds to the first run's
 
 
-@pytest.mark.slow
 def test_ctrl_c_saves_a_checkpoint_and_exits_130(demo_folder, tmp_path, capsys, monkeypatch):
     from training.reconstruct.checkpoint import load_checkpoint
     from training.reconstruct.trainer import Reconstructor
@@ -86,7 +85,6 @@ def test_ctrl_c_saves_a_checkpoint_and_exits_130(demo_folder, tmp_path, capsys, 
     assert not (out / "point_cloud.ply").exists()
 
 
-@pytest.mark.slow
 def test_scene_without_points_and_sfm_depth_falls_back(no_points_folder, tmp_path, capsys):
     out = tmp_path / "out"
     with pytest.warns(UserWarning, match="no SfM points"):

@@ -24,7 +24,6 @@ def _cli(*args: str) -> subprocess.CompletedProcess:
                           timeout=300)
 
 
-@pytest.mark.slow
 @pytest.mark.skipif(not FERN.is_dir(), reason="shared llff_fern photos not available (../shared)")
 def test_fern_ten_views_register_and_load(tmp_path):
     photos = tmp_path / "photos"
