@@ -35,8 +35,9 @@ def psnr(a: np.ndarray, b: np.ndarray) -> float:
 
 
 def reference_render(means, scales, quats, opac, sh, sh_degree, w2c, K, width, height, background=BG,
-                     mode="RGB", backend="cpu"):
-    """The training rasterizer's image (H, W, C) and alpha (H, W) as numpy."""
+                     mode="RGB", backend="torch"):
+    """The training rasterizer's image (H, W, C) and alpha (H, W) as numpy. The torch backend: the reference
+    every backend is held to, and independent of the numba kernels' state."""
     import torch
 
     from training.raster.rasterize import rasterize
