@@ -19,6 +19,7 @@ COMMANDS = [
     "reconstruct",
     "stylize",
     "export",
+    "render",
     "bench",
 ]
 
