@@ -15,9 +15,12 @@ Pipeline, all on float32 arrays shared with torch without copies (``tensor.numpy
    - colours alone (stylization): ``_composite_bwd_rgb``, only each pair's colour weight; no projection backward
      and no view-direction term of the SH backward.
    SH colours (``_sh_fwd`` / ``_sh_bwd``) are evaluated only for visible Gaussians.
+5. Frozen geometry (no gradient, bit-identical to the previous call's, same camera): steps 1-2 are reused, and
+   from the second call on the composited pairs' weights are recorded, so later forwards and colour backwards
+   replay them (``cpu_replay``), with bit-identical results.
 
-This module holds the autograd Function and the entry point; the kernels live in cpu_project, cpu_sort and
-cpu_composite.
+This module holds the autograd Function and the entry point; the kernels live in cpu_project, cpu_sort,
+cpu_composite and cpu_replay.
 """
 
 from __future__ import annotations
@@ -29,10 +32,18 @@ import torch
 from training.raster.cpu_composite import (TILE_CHUNK, _composite_bwd, _composite_bwd_rgb, _composite_fwd,
                                            _reduce_pairs)
 from training.raster.cpu_project import _project_bwd, _project_fwd, _sh_bwd, _sh_fwd
+from training.raster.cpu_replay import FrozenCache, _replay_bwd_rgb, _replay_fwd
 from training.raster.cpu_sort import _bin, _pack, depth_order
 
-# Stands in for the means' gradient when the SH backward must not write one (numba wants an array of that type).
+# Stand in for arrays a kernel is told not to touch (numba wants arrays of the right type).
 _NO_MEANS = np.empty((0, 3), np.float32)
+_NO_I64 = np.empty(0, np.int64)
+_NO_I32 = np.empty(0, np.int32)
+_NO_F32 = np.empty(0, np.float32)
+_NO_F64 = np.empty(0, np.float64)
+
+# Geometry that needs no gradient is reused from the previous call when it is bit-identical (see cpu_replay).
+FROZEN = FrozenCache()
 
 
 class _CompositeState:
@@ -62,13 +73,31 @@ class _RasterizeCPU(torch.autograd.Function):
             feats[:, -1] = st.depths
         st.feats = feats
         out_feat = np.empty((H, W, st.n_ch), np.float32)
-        out_t = np.empty((H, W), np.float32)
-        out_last = np.empty((H, W), np.int32)
         st.packed_feats = np.ascontiguousarray(feats[st.order])
-        # Tiles differ a lot in cost (sky vs detail): hand them out dynamically, a few at a time.
-        with numba.parallel_chunksize(TILE_CHUNK):
-            _composite_fwd(st.offsets, st.ids, st.rec, st.packed_feats, W, H, st.tile_size, st.tiles_x, out_feat,
-                           out_t, out_last)
+        frozen = st.frozen
+        if frozen is not None and frozen.fwd is not None:
+            _replay_fwd(*frozen.fwd, st.packed_feats, W, H, st.tile_size, st.tiles_x, out_feat)
+            out_t, out_last = frozen.out_t.copy(), frozen.out_last
+        else:
+            out_t = np.empty((H, W), np.float32)
+            out_last = np.empty((H, W), np.int32)
+            tile_pairs = np.empty(st.offsets.shape[0] - 1, np.int64)
+            # Frozen geometry seen before: record the composited pairs this time, replay them from then on.
+            cap = frozen.record_offsets() if frozen is not None else None
+            if cap is not None:
+                rec_off, total = cap
+                fwd = (rec_off, np.empty(total, np.int32), np.empty(total, np.int32), np.empty(total, np.float32))
+            else:
+                fwd = (_NO_I64, _NO_I32, _NO_I32, _NO_F32)
+            # Tiles differ a lot in cost (sky vs detail): hand them out dynamically, a few at a time.
+            with numba.parallel_chunksize(TILE_CHUNK):
+                _composite_fwd(st.offsets, st.ids, st.rec, st.packed_feats, W, H, st.tile_size, st.tiles_x,
+                               out_feat, out_t, out_last, tile_pairs, cap is not None, *fwd)
+            if frozen is not None:
+                if frozen.tile_pairs is None:
+                    frozen.out_t, frozen.out_last, frozen.tile_pairs = out_t.copy(), out_last, tile_pairs
+                if cap is not None:
+                    frozen.fwd = fwd
         st.out_t, st.out_last = out_t, out_last
         ctx.st = st
         return torch.from_numpy(out_feat), torch.from_numpy(out_t).unsqueeze(-1)
@@ -107,9 +136,24 @@ class _RasterizeCPU(torch.autograd.Function):
                 v_rgb = np.ascontiguousarray(gsum[:, 6:9], dtype=np.float32)
         elif want_rgb:
             pair_rgb = np.zeros((st.ids.shape[0], 3), np.float32)
-            with numba.parallel_chunksize(TILE_CHUNK):
-                _composite_bwd_rgb(st.offsets, st.ids, st.rec, W, H, st.tile_size, st.tiles_x, st.out_t,
-                                   st.out_last, g_feat_np, pair_rgb)
+            frozen = st.frozen
+            if frozen is not None and frozen.bwd is not None:
+                _replay_bwd_rgb(*frozen.bwd, g_feat_np.reshape(H * W, n_ch), pair_rgb)
+            else:
+                cap = frozen.record_offsets() if frozen is not None else None
+                if cap is not None:
+                    rec_off, total = cap
+                    n_pairs = st.ids.shape[0]
+                    bwd = (np.zeros(n_pairs, np.int64), np.zeros(n_pairs, np.int64), np.empty(total, np.int32),
+                           np.empty(total, np.float64))
+                    rec = (True, rec_off, *bwd)
+                else:
+                    rec = (False, _NO_I64, _NO_I64, _NO_I64, _NO_I32, _NO_F64)
+                with numba.parallel_chunksize(TILE_CHUNK):
+                    _composite_bwd_rgb(st.offsets, st.ids, st.rec, W, H, st.tile_size, st.tiles_x, st.out_t,
+                                       st.out_last, g_feat_np, pair_rgb, *rec)
+                if cap is not None:
+                    frozen.bwd = bwd
             gsum = np.zeros((n, 3))
             gsum[st.order] = _reduce_pairs(st.ids, pair_rgb, st.order.shape[0])
             v_rgb = np.ascontiguousarray(gsum, dtype=np.float32)
@@ -134,23 +178,36 @@ def render_features_cpu(
     """The cpu backend of ``training.raster.rasterize.rasterize``: returns (features (H,W,C) without background,
     final transmittance (H,W,1), means2d (N,2) whose .grad receives the screen-space gradient, radii (N,) int32,
     depths (N,)). Gradients flow to means, quats, scales, opacities and colors (not to viewmat or K).
-    Inputs in another float dtype are converted to float32 (autograd converts their gradients back)."""
+    Inputs in another float dtype are converted to float32 (autograd converts their gradients back).
+    Geometry that needs no gradient and equals the previous call's bit for bit, seen by the same camera, reuses
+    that call's projection, tile lists and compositing weights (cpu_replay): the same results, much faster."""
     ins = [t.to(torch.float32) for t in (means, quats, scales, opacities, colors)]
     m_np, q_np, s_np, o_np, c_np = (t.detach().contiguous().numpy() for t in ins)
     n = m_np.shape[0]
     view = viewmat.detach().to(torch.float64).contiguous().numpy()
     kmat = K.detach().to(torch.float64).contiguous().numpy()
-    means2d = np.empty((n, 2), np.float32)
-    conics = np.empty((n, 3), np.float32)
-    depths = np.empty(n, np.float32)
-    radii = np.empty((n, 2), np.int32)
-    _project_fwd(m_np, q_np, s_np, o_np, view, kmat, width, height, near_plane, far_plane, eps2d,
-                 means2d, conics, depths, radii)
-    visible = np.flatnonzero(radii[:, 0] > 0)
-    order = depth_order(depths, visible)
     tiles_x = (width + tile_size - 1) // tile_size
     tiles_y = (height + tile_size - 1) // tile_size
-    offsets, ids = _bin(order, means2d, radii, tile_size, tiles_x, tiles_y)
+    frozen = None
+    if not any(t.requires_grad for t in ins[:4]):
+        key = (m_np, q_np, s_np, o_np, view, kmat)
+        params = (width, height, near_plane, far_plane, eps2d, tile_size)
+        frozen = FROZEN.lookup(key, params)
+    if frozen is not None:
+        means2d, conics, depths, radii, order, offsets, ids, rec = frozen.proj
+    else:
+        means2d = np.empty((n, 2), np.float32)
+        conics = np.empty((n, 3), np.float32)
+        depths = np.empty(n, np.float32)
+        radii = np.empty((n, 2), np.int32)
+        _project_fwd(m_np, q_np, s_np, o_np, view, kmat, width, height, near_plane, far_plane, eps2d,
+                     means2d, conics, depths, radii)
+        visible = np.flatnonzero(radii[:, 0] > 0)
+        order = depth_order(depths, visible)
+        offsets, ids = _bin(order, means2d, radii, tile_size, tiles_x, tiles_y)
+        rec = _pack(order, means2d, conics, o_np, radii)
+        if not any(t.requires_grad for t in ins[:4]):
+            frozen = FROZEN.store(key, params, (means2d, conics, depths, radii, order, offsets, ids, rec))
 
     # The screen-space gradient exists only where the geometry is trained (as in the reference): a colour-only
     # backward (stylization) computes no per-pair geometric terms, so there would be nothing to put in it.
@@ -162,8 +219,10 @@ def render_features_cpu(
         means=m_np, quats=q_np, scales=s_np, opac=o_np, colors=c_np, view=view, kmat=kmat, eps2d=eps2d,
         campos=-view[:3, :3].T @ view[:3, 3], sh_degree=sh_degree, use_rgb=use_rgb, use_depth=use_depth,
         n_ch=3 * use_rgb + use_depth, means2d=means2d, conics=conics, depths=depths, radii=radii,
-        offsets=offsets, ids=ids, order=order, rec=_pack(order, means2d, conics, o_np, radii), width=width,
-        height=height, tile_size=tile_size, tiles_x=tiles_x)
+        offsets=offsets, ids=ids, order=order, rec=rec, width=width, height=height, tile_size=tile_size,
+        tiles_x=tiles_x, tiles_y=tiles_y, frozen=frozen)
     feat_img, trans = _RasterizeCPU.apply(*ins, means2d_t, st)
     radii_out = torch.from_numpy(radii.max(axis=1))
-    return feat_img, trans, means2d_t, radii_out, torch.from_numpy(depths)
+    # A cached entry's arrays must not be handed out: the caller could write into them.
+    depths_out = torch.from_numpy(depths.copy() if frozen is not None else depths)
+    return feat_img, trans, means2d_t, radii_out, depths_out

@@ -76,8 +76,14 @@ def _power(mx, ca, bdy, cdy, px):
 
 
 @njit(parallel=True, **JIT)
-def _composite_fwd(offsets, ids, rec, feats, width, height, tile_size, tiles_x, out_feat, out_t, out_last):
-    """ids: depth ranks; rec (V, 8) and feats (V, C) are packed in depth order (see _pack)."""
+def _composite_fwd(offsets, ids, rec, feats, width, height, tile_size, tiles_x, out_feat, out_t, out_last,
+                   tile_pairs, record, rec_off, rec_p, rec_g, rec_w):
+    """ids: depth ranks; rec (V, 8) and feats (V, C) are packed in depth order (see _pack). tile_pairs[t]: how
+    many (pixel, Gaussian) pairs tile t composited.
+
+    With ``record``, also writes every composited pair, in compositing order, as (tile-local pixel, depth rank,
+    weight a T) from rec_off[t] on (cpu_replay replays them); otherwise those arrays are not touched (may be
+    empty)."""
     n_tiles = offsets.shape[0] - 1
     n_ch = feats.shape[1]
     for t in prange(n_tiles):
@@ -91,6 +97,8 @@ def _composite_fwd(offsets, ids, rec, feats, width, height, tile_size, tiles_x, 
         last = np.zeros(n_pix, np.int32)
         done = np.zeros(n_pix, np.bool_)
         remaining = n_pix
+        k = rec_off[t] if record else 0
+        composited = 0
         s = offsets[t]
         for j in range(s, offsets[t + 1]):
             g = ids[j]
@@ -122,8 +130,15 @@ def _composite_fwd(offsets, ids, rec, feats, width, height, tile_size, tiles_x, 
                         acc[p, c] += feats[g, c] * w
                     T[p] = next_t
                     last[p] = j - s + 1
+                    composited += 1
+                    if record:
+                        rec_p[k] = p
+                        rec_g[k] = g
+                        rec_w[k] = w
+                        k += 1
             if remaining == 0:
                 break
+        tile_pairs[t] = composited
         for py in range(y0, y1):
             for px in range(x0, x1):
                 p = (py - y0) * tw + (px - x0)
@@ -229,9 +244,13 @@ def _composite_bwd(offsets, ids, rec, feats, width, height, tile_size, tiles_x, 
 
 
 @njit(parallel=True, **JIT)
-def _composite_bwd_rgb(offsets, ids, rec, width, height, tile_size, tiles_x, out_t, out_last, g_feat, pair_rgb):
+def _composite_bwd_rgb(offsets, ids, rec, width, height, tile_size, tiles_x, out_t, out_last, g_feat, pair_rgb,
+                       record, rec_off, j_start, j_count, rec_pix, rec_w):
     """The colour part of ``_composite_bwd`` alone. g_feat (H, W, C >= 3): its first three channels are the RGB
-    gradients; pair_rgb: (P, 3) float32, zeroed, one row per list entry, receiving that pair's RGB gradient."""
+    gradients; pair_rgb: (P, 3) float32, zeroed, one row per list entry, receiving that pair's RGB gradient.
+
+    With ``record``, also writes each list entry j's pixel weights, in this walk's order, as (pixel y * W + x,
+    float64 weight) at j_start[j] .. + j_count[j], tile t's from rec_off[t] on (cpu_replay replays them)."""
     n_tiles = offsets.shape[0] - 1
     for t in prange(n_tiles):
         ty, tx = t // tiles_x, t % tiles_x
@@ -252,11 +271,14 @@ def _composite_bwd_rgb(offsets, ids, rec, width, height, tile_size, tiles_x, out
                 last[p] = out_last[py, px]
                 max_last = max(max_last, last[p])
         s = offsets[t]
+        k = rec_off[t] if record else 0
         for j in range(s + max_last - 1, s - 1, -1):
             g = ids[j]
             mx, my, ca, cb, cc, o, log_thr = rec[g, 0], rec[g, 1], rec[g, 2], rec[g, 3], rec[g, 4], rec[g, 5], \
                 rec[g, 6]
             by0, by1 = _rows(my, rec[g, 7], y0, y1)
+            if record:
+                j_start[j] = k
             vr = 0.0
             vg = 0.0
             vb = 0.0
@@ -286,6 +308,12 @@ def _composite_bwd_rgb(offsets, ids, rec, width, height, tile_size, tiles_x, out
                     vr += w * gf[p, 0]
                     vg += w * gf[p, 1]
                     vb += w * gf[p, 2]
+                    if record:
+                        rec_pix[k] = py * width + px
+                        rec_w[k] = w
+                        k += 1
+            if record:
+                j_count[j] = k - j_start[j]
             if touched:
                 pair_rgb[j, 0] = vr
                 pair_rgb[j, 1] = vg
