@@ -6,6 +6,11 @@ iterations per second over the timed iterations (after warm-up ones that include
 median milliseconds of rasterize (forward), VGG forward (render, plus content/style features when a view starts),
 similarity/top-K, Sinkhorn and guide (CCFT's own breakdown, inside "loss"), backward (VGG and rasterizer) and the
 optimiser step.
+
+Stylization trains colours only, and the rasterizer's backward then skips every geometric term. Each row also
+runs the same loss again with the geometry tensors requiring gradients (means, quats, scales, opacities: the full
+backward, as reconstruction runs it) and reports it as ``full_*`` with ``colour_only_speedup`` = colour-only it/s
+over full it/s, both measured in this run, one after the other.
 """
 
 from __future__ import annotations
@@ -28,8 +33,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> list[dict]:
-    import statistics
-    import time
+    import copy
 
     import numpy as np
 
@@ -60,22 +64,54 @@ def run(args: argparse.Namespace) -> list[dict]:
             config = StylizeConfig(loss=loss, preset="quick", max_side=max(args.width, args.height),
                                    iters_per_view=max(1, (args.warmup + args.iters) // args.views),
                                    backend=backend, device=str(device))
-            stylizer = Stylizer(gaussians, scene, style, config, vgg=vgg)
-            for _ in range(args.warmup):
-                stylizer.step()
-            samples: dict[str, list[float]] = {}
-            t0 = time.perf_counter()
-            for _ in range(args.iters):
-                r = stylizer.step()
-                for key, value in r["timings"].items():
-                    samples.setdefault(key, []).append(value)
-            elapsed = time.perf_counter() - t0
             row = {"loss": loss, "backend": backend, "device": str(device), "gaussians": len(gaussians),
-                   "size": f"{args.width}x{args.height}", "it_per_s": args.iters / elapsed,
-                   "ms_per_it": 1000 * elapsed / args.iters}
-            for key in ("rasterize", "vgg_forward", "loss", "similarity_topk", "sinkhorn", "guide", "backward",
-                        "optimizer"):
-                if key in samples:
-                    row[f"{key}_ms"] = 1000 * statistics.median(samples[key])
+                   "size": f"{args.width}x{args.height}"}
+            for variant in ("colour", "full"):
+                stylizer = Stylizer(gaussians, scene, style, copy.deepcopy(config), vgg=vgg)
+                geometry = _train_geometry(stylizer) if variant == "full" else []
+                timed = _time_steps(stylizer, geometry, args.warmup, args.iters)
+                prefix = "" if variant == "colour" else "full_"
+                row.update({prefix + key: value for key, value in timed.items()})
+            row["colour_only_speedup"] = row["it_per_s"] / row["full_it_per_s"]
             rows.append(row)
     return rows
+
+
+STAGES = ("rasterize", "vgg_forward", "loss", "similarity_topk", "sinkhorn", "guide", "backward", "optimizer")
+
+
+def _train_geometry(stylizer) -> list:
+    """Make the stylizer's geometry require gradients, so its rasterizer runs the full backward (and autograd
+    carries the gradients to these tensors, as a reconstruction step would); returns those tensors."""
+    g = stylizer.gaussians
+    try:
+        tensors = [g.means, g.quats, stylizer._scales, stylizer._opacities]
+    except AttributeError as exc:  # the trainer keeps its render-ready geometry under these names
+        raise RuntimeError(f"bench stylize: the Stylizer's geometry is not where the benchmark expects it ({exc})")
+    for t in tensors:
+        t.requires_grad_(True)
+    return tensors
+
+
+def _time_steps(stylizer, geometry: list, warmup: int, iters: int) -> dict:
+    import statistics
+    import time
+
+    def step():
+        for t in geometry:  # the stylizer's optimiser only clears the colours' gradients
+            t.grad = None
+        return stylizer.step()
+
+    for _ in range(warmup):
+        step()
+    samples: dict[str, list[float]] = {}
+    t0 = time.perf_counter()
+    for _ in range(iters):
+        for key, value in step()["timings"].items():
+            samples.setdefault(key, []).append(value)
+    elapsed = time.perf_counter() - t0
+    out = {"it_per_s": iters / elapsed, "ms_per_it": 1000 * elapsed / iters}
+    for key in STAGES:
+        if key in samples:
+            out[f"{key}_ms"] = 1000 * statistics.median(samples[key])
+    return out
