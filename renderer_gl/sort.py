@@ -20,7 +20,7 @@ import numpy as np
 
 PRECISIONS = ("auto", "float", "u16")
 # Above this many Gaussians "auto" sorts 16-bit keys (numbers in docs/renderer.md).
-AUTO_U16_ABOVE = 300_000
+AUTO_U16_ABOVE = 50_000
 
 
 def depth_keys(means: np.ndarray, forward: np.ndarray) -> np.ndarray:

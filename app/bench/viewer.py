@@ -1,0 +1,140 @@
+"""``splatstyler bench viewer``: renderer_gl frame and sort times against the numba CPU rasterizer's forward pass.
+
+For each N (default 10k, 100k, 500k, 1M) at one size (default 1280x720), in one process and one standalone GL
+context (EGL unless ``--backend``), on ``app.bench.raster``'s scene (a fixed amount of "stuff" whatever N):
+
+- ``frame_ms``: a frame with the camera still (no sort): splat pass into the float accumulation target, resolve
+  into an RGBA8 framebuffer, ``glFinish``; ``frame_half_ms`` the same at half resolution (the viewer's size while
+  the camera moves); ``frame_f1_ms`` with an 8-bit accumulation target;
+- ``sort_float_ms`` / ``sort_u16_ms``: numpy back-to-front order with exact float keys / 16-bit keys;
+  ``upload_ms``: writing that order to the index buffer (with ``glFinish``); ``sort_upload_ms``: the renderer's
+  default ("auto") sort plus upload, what a turning camera adds to a frame;
+- ``gpu_sort_ms``: the compute-shader bitonic sort (renderer_gl/gpu_sort.py), up to ``--gpu-sort-max`` Gaussians;
+- ``cpu_fwd_ms``: ``rasterize(backend="cpu")`` forward without gradients, same scene and size;
+  ``cpu_over_gl``: cpu_fwd_ms / frame_ms.
+
+Times are medians over ``--repeat`` runs after one warm-up.
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import statistics
+import sys
+import time
+
+DEFAULT_NS = (10_000, 100_000, 500_000, 1_000_000)
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("--n", default=None, help="comma-separated Gaussian counts (default 10k,100k,500k,1M)")
+    parser.add_argument("--size", default="1280x720", help="image size WxH (default 1280x720)")
+    parser.add_argument("--repeat", type=int, default=3, help="timed runs per figure after one warm-up")
+    parser.add_argument("--backend", choices=("auto", "egl", "osmesa"), default="egl", help="GL context")
+    parser.add_argument("--gpu-sort-max", type=int, default=100_000,
+                        help="measure the compute-shader sort up to this many Gaussians (slow on software GL)")
+    parser.add_argument("--no-cpu", action="store_true", help="skip the CPU rasterizer comparison")
+
+
+def _median_ms(fn, repeat: int) -> float:
+    fn()
+    times = []
+    for _ in range(max(1, repeat)):
+        t0 = time.perf_counter()
+        fn()
+        times.append(time.perf_counter() - t0)
+    return 1000.0 * statistics.median(times)
+
+
+def _parse_size(text: str) -> tuple[int, int]:
+    try:
+        w, h = (int(v) for v in text.lower().split("x"))
+    except ValueError:
+        raise SystemExit(f"splatstyler: error: --size must look like 1280x720, got {text!r}") from None
+    return w, h
+
+
+def run(args: argparse.Namespace) -> list[dict]:
+    import numpy as np
+
+    from app.bench.raster import bench_scene
+    from renderer_gl import Offscreen, SplatRenderer, create_context, view
+    from renderer_gl.context import context_backend
+    from renderer_gl.sort import back_to_front
+
+    ns = [int(float(v)) for v in args.n.split(",")] if args.n else list(DEFAULT_NS)
+    w, h = _parse_size(args.size)
+    ctx = create_context(args.backend, require=430 if args.gpu_sort_max > 0 else 330)
+    gl_name = context_backend(ctx)
+    off = Offscreen(ctx, w, h)
+    rows = []
+    for n in ns:
+        scene = bench_scene(n, w, h, 3)
+        means, quats, scales, opac, sh = (t.numpy() for t in scene[:5])
+        K = scene[6].numpy()
+        cam = view(world_to_camera=np.eye(4), K=K, width=w, height=h)
+        row = {"n": n, "width": w, "height": h}
+        r = SplatRenderer(ctx, sort_tolerance_deg=1e9)  # never re-sort inside the frame timings
+        t0 = time.perf_counter()
+        r.set_splats(means, scales, quats, opac, sh, 3)
+        ctx.finish()
+        row["set_splats_ms"] = 1000 * (time.perf_counter() - t0)
+
+        def frame(scale=1.0, renderer=r):
+            renderer.render(cam, off.fbo, scale=scale)
+            ctx.finish()
+
+        row["frame_ms"] = _median_ms(frame, args.repeat)
+        row["frame_half_ms"] = _median_ms(lambda: frame(0.5), args.repeat)
+        r8 = SplatRenderer(ctx, accum_dtype="f1", sort_tolerance_deg=1e9)
+        r8.set_splats(means, scales, quats, opac, sh, 3)
+        row["frame_f1_ms"] = _median_ms(lambda: frame(1.0, r8), args.repeat)
+        r8.release()
+        model = r._slots[0]
+        fwd = cam.forward
+        order = back_to_front(model.means, fwd, "float")
+        row["sort_float_ms"] = _median_ms(lambda: back_to_front(model.means, fwd, "float"), args.repeat)
+        row["sort_u16_ms"] = _median_ms(lambda: back_to_front(model.means, fwd, "u16"), args.repeat)
+
+        def upload():
+            model.write_order(order, fwd)
+            ctx.finish()
+
+        row["upload_ms"] = _median_ms(upload, args.repeat)
+
+        def sort_upload():
+            model.write_order(back_to_front(model.means, fwd, "auto"), fwd)
+            ctx.finish()
+
+        row["sort_upload_ms"] = _median_ms(sort_upload, args.repeat)
+        if n <= args.gpu_sort_max:
+            from renderer_gl.gpu_sort import BitonicDepthSort
+
+            gs = BitonicDepthSort(ctx, means)
+
+            def gpu_sort():
+                gs.sort(fwd)
+                ctx.finish()
+
+            row["gpu_sort_ms"] = _median_ms(gpu_sort, args.repeat)
+            gs.release()
+        r.release()
+        if not args.no_cpu:
+            import torch
+
+            from training.raster.rasterize import rasterize
+
+            def cpu_forward():
+                with torch.no_grad():
+                    rasterize(*scene, w, h, sh_degree=3, backend="cpu")
+
+            row["cpu_fwd_ms"] = _median_ms(cpu_forward, max(1, min(args.repeat, 2 if n > 200_000 else args.repeat)))
+            row["cpu_over_gl"] = row["cpu_fwd_ms"] / row["frame_ms"]
+        row["gl"] = gl_name.split(",")[0]
+        row["load1"] = os.getloadavg()[0]
+        rows.append(row)
+        print(f"bench viewer: {n} done", file=sys.stderr)
+    off.release()
+    ctx.release()
+    return rows
