@@ -14,6 +14,7 @@ import sys
 # Order here is the order in `splatstyler --help`.
 COMMANDS = [
     "demo",
+    "view",
     "sfm",
     "info",
     "reconstruct",

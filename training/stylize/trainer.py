@@ -274,6 +274,7 @@ class Stylizer:
         self._version = 0
         self._geometry_version = 0
         self._last_snapshot: ModelSnapshot | None = None
+        self._capacity: np.ndarray | None = None
         self.events = EventSource("stylize")
         self.add_listener = self.events.add_listener
         self.remove_listener = self.events.remove_listener
@@ -296,6 +297,16 @@ class Stylizer:
     @property
     def current_view(self) -> ViewItem:
         return self.trajectory[self._position]
+
+    @property
+    def trajectory_position(self) -> int:
+        """Index into ``trajectory`` of the view the next step optimises."""
+        return self._position
+
+    def capacity_map(self) -> np.ndarray | None:
+        """(h, w) float32: the column mass of the last CCFT plan at each style feature's place on the painting's
+        feature grid (sums to about 1; None before the first CCFT step). Any thread."""
+        return self._capacity
 
     # ------------------------------------------------------------------ rendering
     def _resize(self, image: np.ndarray, camera: Camera) -> np.ndarray:
@@ -438,6 +449,10 @@ class Stylizer:
 
         t = time.perf_counter()
         style_loss, stats = self.style_loss(feats, style)
+        last = getattr(self.style_loss, "last_result", None)
+        if last is not None and getattr(last, "column_mass", None) is not None:
+            # swapped in whole: a reader on another thread sees the previous map or this one
+            self._capacity = last.column_mass.detach().to("cpu", torch.float32).numpy().reshape(style.shape[2:])
         content_loss = F.mse_loss(feats, content)
         loss = cfg.style_weight * style_loss + cfg.lambda_content * content_loss
         sync()
@@ -472,6 +487,9 @@ class Stylizer:
             "virtual": view.is_virtual,
             "coverage": float(alpha.detach().mean()),
             "timings": timings,
+            # the settings this step used: a live change shows in the first step that applied it
+            "tau": cfg.tau, "k": cfg.k, "epsilon": cfg.epsilon, "lambda_guide": cfg.lambda_guide,
+            "lambda_style": cfg.style_weight, "lambda_content": cfg.lambda_content, "lr": cfg.learning_rate,
         }
         result.update({k: _plain(v) for k, v in stats.items()
                        if k not in ("loss",) and not k.endswith("_s") and _is_scalar(v)})

@@ -1,0 +1,481 @@
+"""The viewer application: one window (imgui-bundle's runner, GLFW 3.5.1, GL 3.3 core) with the 3D view behind
+the panels, a live session beside it, and the state the panels edit.
+
+Per frame: drain the session's messages, take a new model snapshot when one is due (at most every
+``refresh_s`` while training, so drawing does not starve the trainer of the GIL), handle camera input, draw the
+panels. The 3D view redraws only when something it shows changed (see view3d.py), and the runner idles at a low
+frame rate when nothing happens.
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from app.viewer.session import LiveSession, SessionMessage
+from training.core.messages import ModelSnapshot, TrainerEvent
+
+IDLE_FPS = 4.0  # the runner's frame rate while nothing happens: each idle frame costs the trainer GIL time
+MAX_FPS = 30.0
+
+
+@dataclass
+class Paths:
+    model: str = ""
+    data: str = ""
+    style: str = ""
+    out: str = "viewer_out"
+
+
+@dataclass
+class Scene:
+    """What the viewer knows of the dataset: cameras (always), photos (loaded on first use)."""
+
+    cameras: list = field(default_factory=list)
+    path: str = ""
+    photos: dict[int, np.ndarray] = field(default_factory=dict)
+    images_scene: Any = None
+
+
+def snapshot_of(gaussians, version: int = 0) -> ModelSnapshot:
+    """A ModelSnapshot of a Gaussians model (a PLY the user opened)."""
+    from training.core.messages import frozen_array
+
+    g = gaussians
+    return ModelSnapshot(version, version, 0, frozen_array(g.means), frozen_array(g.scales),
+                         frozen_array(g.rotations), frozen_array(g.opacities), frozen_array(g.sh), g.sh_degree)
+
+
+class ViewerApp:
+    def __init__(self, paths: Paths | None = None, start: str | None = None, preset: str = "quick",
+                 recon_iters: int | None = None, stylize_overrides: dict | None = None,
+                 downscale: int | None = None):
+        from training.stylize.trainer import StylizeConfig
+
+        self.paths = paths or Paths()
+        self.session = LiveSession()
+        self.scene = Scene()
+        self.view = None  # View3D, made in post_init (needs the GL context)
+        self.ctx = None
+        self.style_image: np.ndarray | None = None
+        self.static_model: ModelSnapshot | None = None  # an opened PLY, shown when no trainer runs
+        self.original: ModelSnapshot | None = None  # the model before stylization (split view, right: stylized)
+        self.model_info: dict[str, Any] = {}
+        self.preset = preset
+        self.recon_iters = recon_iters
+        self.downscale = downscale
+        self.stylize_config = StylizeConfig(preset="quick", **(stylize_overrides or {}))
+        self.refresh_s = 1.0
+        self.messages: list[str] = []  # one-line messages for the user, newest last
+        self.error = ""
+        self.show_help = False
+        self.frames = 0
+        self._start = start
+        self._last_snapshot_at = 0.0
+        self._last_frame_time = time.perf_counter()
+        self._stage = ""
+        self.capacity_texture = None
+        self.style_texture = None
+        self.order_preview: list | None = None  # (camera index, is_virtual) before a run
+        self.screenshot_path: Path | None = None
+        self.closed = False
+
+    # ------------------------------------------------------------------ messages
+    def say(self, line: str) -> None:
+        self.messages.append(line)
+        del self.messages[:-50]
+
+    def fail(self, line: str) -> None:
+        self.error = line
+        self.say(f"error: {line}")
+
+    def guarded(self, what: str, fn, *args, **kwargs):
+        """Run a user action; a failure becomes one line in the window, never an exception out of the UI."""
+        from training.core.errors import InputError
+
+        try:
+            return fn(*args, **kwargs)
+        except InputError as exc:
+            self.fail(str(exc))
+        except Exception as exc:  # noqa: BLE001  (the session goes on whatever the action hit)
+            text = str(exc).strip().splitlines()[0] if str(exc).strip() else ""
+            self.fail(f"{what}: {type(exc).__name__}: {text}")
+        return None
+
+    # ------------------------------------------------------------------ loading (UI thread, user actions)
+    def open_model(self, path: str) -> None:
+        from training.model.ply_io import read_ply
+        from training.model.splat_io import read_splat
+
+        p = Path(path)
+        g = read_splat(p) if p.suffix.lower() == ".splat" else read_ply(p)
+        self.static_model = snapshot_of(g, version=-int(time.time() * 1000) % 1_000_000_000)
+        self.paths.model = str(p)
+        self._describe(self.static_model)
+        if self.view is not None:
+            self.view.show(self.static_model, 0)
+            if self.view.camera is None:
+                self._frame_model(self.static_model)
+        self.say(f"opened {p} ({len(self.static_model)} Gaussians)")
+
+    def open_data(self, path: str) -> None:
+        from training.scene.loader import load_scene
+
+        scene = load_scene(path, load_images=False)
+        if not scene.cameras:
+            raise ValueError(f"{path}: the scene has no cameras")
+        self.scene = Scene(cameras=scene.cameras, path=str(path))
+        self.paths.data = str(path)
+        self.order_preview = None
+        if self.view is not None:
+            self._place_camera()
+            self.update_overlays()
+        self.say(f"opened {path} ({len(scene.cameras)} cameras)")
+
+    def open_style(self, path: str) -> None:
+        from training.stylize.style_image import load_style_image
+
+        self.style_image = load_style_image(path)
+        self.paths.style = str(path)
+        self._release_style_textures()
+        self.say(f"opened painting {path} ({self.style_image.shape[1]}x{self.style_image.shape[0]})")
+
+    def photo(self, index: int) -> np.ndarray | None:
+        """The dataset photo of camera ``index`` at the loader's size (loaded once, on first use)."""
+        if index in self.scene.photos:
+            return self.scene.photos[index]
+        if not self.scene.path:
+            return None
+        from training.scene.loader import load_scene
+
+        if self.scene.images_scene is None:
+            self.scene.images_scene = load_scene(self.scene.path, downscale=self._photo_downscale())
+        img = self.scene.images_scene.images[index]
+        self.scene.photos[index] = img
+        return img
+
+    def _photo_downscale(self) -> int:
+        long_side = max(max(c.width, c.height) for c in self.scene.cameras)
+        return max(1, long_side // 1024)
+
+    def _describe(self, snap: ModelSnapshot) -> None:
+        if len(snap) == 0:
+            self.model_info = {"count": 0}
+            return
+        lo, hi = snap.means.min(axis=0), snap.means.max(axis=0)
+        self.model_info = {"count": len(snap), "sh_degree": snap.sh_degree, "min": lo, "max": hi}
+
+    # ------------------------------------------------------------------ camera placement
+    def _place_camera(self) -> None:
+        from app.viewer.camera_control import ViewerCamera
+
+        if self.scene.cameras:
+            self.view.camera = ViewerCamera.from_dataset(self.scene.cameras)
+            self.view.moved()
+        elif self.static_model is not None:
+            self._frame_model(self.static_model)
+
+    def _frame_model(self, snap: ModelSnapshot) -> None:
+        from app.viewer.camera_control import ViewerCamera
+
+        if len(snap) == 0:
+            return
+        center = np.median(snap.means, axis=0).astype(np.float64)
+        spread = float(np.percentile(np.linalg.norm(snap.means - center, axis=1), 90)) or 1.0
+        self.view.camera = ViewerCamera.looking_at(center + np.array([0.0, -0.5, -2.5]) * spread, center,
+                                                   up=(0.0, -1.0, 0.0))
+        self.view.moved()
+
+    def reset_camera(self) -> None:
+        self._place_camera()
+
+    def snap_to_camera(self, index: int) -> None:
+        if 0 <= index < len(self.scene.cameras):
+            self.view.snap_to(self.scene.cameras[index], self.scene.cameras)
+            if self.view.settings.photo != "off":
+                self.set_photo(index)
+
+    def snap_to_nearest(self) -> int | None:
+        if not self.scene.cameras or self.view.camera is None:
+            return None
+        index = self.view.nearest(self.scene.cameras)
+        self.snap_to_camera(index)
+        return index
+
+    def set_photo(self, index: int) -> None:
+        img = self.photo(index)
+        self.view.renderer.set_photo(img)
+        self.photo_index = index
+        self.view.dirty = True
+
+    # ------------------------------------------------------------------ runs
+    def out_dir(self) -> Path:
+        return Path(self.paths.out)
+
+    def start_reconstruction(self, then_stylize: bool = False) -> None:
+        from app.viewer.stages import reconstruct_stage, stylize_stage
+
+        if not self.paths.data:
+            raise ValueError("open a dataset first (COLMAP folder or transforms.json)")
+        overrides = {} if self.recon_iters is None else {"iterations": int(self.recon_iters)}
+        stages = [reconstruct_stage(self.paths.data, self.out_dir() / "reconstruction", preset=self.preset,
+                                    downscale=self.downscale, **overrides)]
+        if then_stylize:
+            if self.style_image is None:
+                raise ValueError("open a painting first")
+            stages.append(stylize_stage(self.paths.data, self.paths.style, self.out_dir() / "stylized",
+                                        config=self._stylize_config_copy()))
+        self.original = None
+        self.error = ""
+        self.session.start(stages)
+
+    def start_stylization(self) -> None:
+        from app.viewer.stages import stylize_stage
+
+        if not self.paths.data:
+            raise ValueError("open the dataset the model was reconstructed from")
+        if self.style_image is None:
+            raise ValueError("open a painting first")
+        model = self.paths.model or None
+        if model is None:
+            raise ValueError("open a model (PLY) or reconstruct first")
+        self.original = self.static_model
+        self.error = ""
+        self.session.start([stylize_stage(self.paths.data, self.paths.style, self.out_dir() / "stylized",
+                                          config=self._stylize_config_copy(), model=model)])
+
+    def _stylize_config_copy(self):
+        from dataclasses import replace
+
+        return replace(self.stylize_config)
+
+    def set_stylize(self, **changes: Any) -> None:
+        """A slider moved: to the running stylizer (at its next step), and into the config of the next run."""
+        from dataclasses import replace
+
+        trainer = self.session.trainer
+        if self._stage == "stylize" and self.session.running and trainer is not None:
+            refusal = self.session.update_config(**changes)
+            if refusal:
+                self.fail(refusal)
+                return
+        candidate = replace(self.stylize_config, **changes)
+        try:
+            candidate.validate()
+        except ValueError as exc:
+            self.fail(str(exc))
+            return
+        self.stylize_config = candidate
+        if any(k in changes for k in ("view_order", "virtual_views", "seed")):
+            self.order_preview = None
+            self.update_overlays()
+
+    # ------------------------------------------------------------------ per frame
+    def sync(self) -> None:
+        """Drain the session's news and take a new snapshot when one is due."""
+        for item in self.session.poll():
+            if isinstance(item, SessionMessage):
+                if item.kind == "stage":
+                    self._stage = item.text
+                    if item.text == "stylize" and self.original is None and self.view is not None:
+                        self.original = self._current_model()
+                    self.update_overlays()
+                elif item.kind == "error":
+                    self.fail(item.text)
+                elif item.kind == "saved":
+                    self.paths.model = item.text
+                    self.say(f"saved {item.text}")
+                elif item.kind == "state":
+                    self.view.dirty |= item.text in ("paused", "finished", "stopped")
+                    self._last_snapshot_at = 0.0  # a pause or the end: show the model as it is now
+            elif isinstance(item, TrainerEvent):
+                if item.kind == "view":
+                    self.update_overlays()
+                elif item.kind == "warning":
+                    self.say(f"warning: {item.message}")
+        now = time.perf_counter()
+        if self.session.trainer is not None and now - self._last_snapshot_at >= self.refresh_s:
+            snap = self.session.snapshot()
+            self._last_snapshot_at = now
+            if snap is not None and self.view.show(snap, 0):
+                self._describe(snap)
+                if self.view.camera is None:
+                    self._place_camera()
+        if self.original is not None and self.view.settings.split:
+            self.view.show(self.original, 1)
+
+    def _current_model(self) -> ModelSnapshot | None:
+        trainer = self.session.trainer
+        return trainer.snapshot() if trainer is not None else self.static_model
+
+    def update_overlays(self) -> None:
+        """Frustums of the dataset cameras and the stylization's path through them, in the 3D view."""
+        if self.view is None:
+            return
+        from renderer_gl import Lines, frustums, polyline
+
+        parts = []
+        cams = self.scene.cameras
+        if cams:
+            size = 0.05 * _span([c.center for c in cams])
+            if self.view.settings.show_frustums:
+                current = self.current_view_index()
+                colors = [(1.0, 0.25, 0.2, 1.0) if i == current else (0.95, 0.8, 0.2, 0.8) for i in range(len(cams))]
+                parts.append(frustums(cams, size, colors))
+            if self.view.settings.show_path:
+                order = [item[0] for item in self.trajectory() if not item[2]]
+                if len(order) > 1:
+                    parts.append(polyline(np.array([cams[i].center for i in order]), (0.2, 0.9, 1.0, 0.9)))
+        self.view.overlays = Lines.join(parts) if parts else None
+        self.view.dirty = True
+
+    def trajectory(self) -> list[tuple[int, np.ndarray, bool]]:
+        """(source camera index, centre, is virtual) in optimisation order: the running stylizer's, or the order
+        the next stylization would follow."""
+        trainer = self.session.trainer
+        if self._stage == "stylize" and trainer is not None and hasattr(trainer, "trajectory"):
+            return [(item.source_index, item.camera.center, item.is_virtual) for item in trainer.trajectory]
+        if not self.scene.cameras:
+            return []
+        if self.order_preview is None:
+            from training.stylize.view_order import view_order
+            from training.stylize.virtual_views import trajectory
+
+            cfg = self.stylize_config
+            cams = self.scene.cameras
+            order = view_order(cams, cfg.view_order, seed=cfg.seed, extent=_span([c.center for c in cams]) / 2)
+            self.order_preview = [(item.source_index, item.camera.center, item.is_virtual)
+                                  for item in trajectory(cams, order, cfg.virtual_views)]
+        return self.order_preview
+
+    def current_view_index(self) -> int | None:
+        """Trajectory position of the view the stylizer optimises now (None when no stylizer runs)."""
+        trainer = self.session.trainer
+        if self._stage == "stylize" and trainer is not None and hasattr(trainer, "trajectory_position"):
+            return trainer.trajectory_position
+        return None
+
+    # ------------------------------------------------------------------ runner callbacks
+    def post_init(self) -> None:
+        import moderngl
+
+        from app.viewer.view3d import View3D
+
+        self.ctx = moderngl.create_context(require=330)
+        self.view = View3D(self.ctx)
+        renderer = str(self.ctx.info.get("GL_RENDERER", "")).lower()
+        self.software_gl = any(name in renderer for name in ("llvmpipe", "softpipe", "swrast"))
+        if self.software_gl:
+            # drawing on the CPU competes with the trainer for the same cores: a coarser live view by default
+            self.view.settings.training_scale = 0.5
+        for what, path, fn in (("model", self.paths.model, self.open_model), ("data", self.paths.data, self.open_data),
+                               ("painting", self.paths.style, self.open_style)):
+            if path:
+                self.guarded(f"open {what}", fn, path)
+        if self.view.camera is None:
+            self._place_camera()
+        if self._start == "demo":
+            self.guarded("start", self.start_reconstruction, then_stylize=True)
+        elif self._start == "reconstruct":
+            self.guarded("start", self.start_reconstruction)
+        elif self._start == "stylize":
+            self.guarded("start", self.start_stylization)
+
+    def before_exit(self) -> None:
+        """Window closed: the trainer stops and saves (checkpoint, model) before the GL objects go."""
+        self.session.close()
+        for item in self.session.poll():
+            if isinstance(item, SessionMessage) and item.kind == "saved":
+                self.say(f"saved {item.text}")
+        self._release_style_textures()
+        if self.view is not None:
+            self.view.release()
+        self.closed = True
+
+    def _release_style_textures(self) -> None:
+        for tex in (self.capacity_texture, self.style_texture):
+            if tex is not None:
+                tex.release()
+        self.capacity_texture = self.style_texture = None
+
+    def custom_background(self) -> None:
+        from imgui_bundle import imgui
+
+        io = imgui.get_io()
+        size = (int(io.display_size.x * io.display_framebuffer_scale.x),
+                int(io.display_size.y * io.display_framebuffer_scale.y))
+        self.view.draw(size, split_ready=self.original is not None, training=self.session.running)
+        screen = self.ctx.detect_framebuffer()
+        self.view.blit(screen)
+
+    def gui(self) -> None:
+        from imgui_bundle import hello_imgui, imgui
+
+        from app.viewer import panels
+
+        self.frames += 1
+        now = time.perf_counter()
+        dt, self._last_frame_time = now - self._last_frame_time, now
+        self.guarded("update", self.sync)
+        span = _span([c.center for c in self.scene.cameras]) if self.scene.cameras else 1.0
+        self.view.handle_input(imgui, min(dt, 0.1), fly_speed=0.5 * span)
+        if imgui.is_key_pressed(imgui.Key.f1) or (imgui.is_key_pressed(imgui.Key.h)
+                                                  and not imgui.get_io().want_capture_keyboard):
+            self.show_help = not self.show_help
+        if not imgui.get_io().want_capture_keyboard:
+            if imgui.is_key_pressed(imgui.Key.r):
+                self.reset_camera()
+            if imgui.is_key_pressed(imgui.Key.n):
+                self.snap_to_nearest()
+            if imgui.is_key_pressed(imgui.Key.space):
+                (self.session.resume if self.session.status().state == "paused" else self.session.pause)()
+        panels.draw_all(self)
+        if self.session.running or self.view.needs_draw():
+            hello_imgui.get_runner_params().fps_idling.fps_idle = IDLE_FPS
+
+    def runner_params(self, title: str = "splatstyler", size=(1280, 800)):
+        from imgui_bundle import hello_imgui
+
+        rp = hello_imgui.RunnerParams()
+        rp.app_window_params.window_title = title
+        rp.app_window_params.window_geometry.size = size
+        rp.ini_disable = True
+        rp.fps_idling.enable_idling = True
+        rp.fps_idling.fps_idle = IDLE_FPS
+        # every frame holds the GIL for a while: cap the rate (the null platform has no vsync to do it) and
+        # idle soon after the last input
+        rp.fps_idling.fps_max = MAX_FPS
+        rp.fps_idling.time_active_after_last_event = 0.5
+        rp.imgui_window_params.default_imgui_window_type = hello_imgui.DefaultImGuiWindowType.no_default_window
+        rp.callbacks.post_init = self.post_init
+        rp.callbacks.before_exit = self.before_exit
+        rp.callbacks.custom_background = self.custom_background
+        rp.callbacks.show_gui = self.gui
+        return rp
+
+
+def _span(points) -> float:
+    pts = np.asarray(points, dtype=np.float64).reshape(-1, 3)
+    if len(pts) < 2:
+        return 1.0
+    return max(float(np.ptp(pts, axis=0).max()), 1e-6)
+
+
+def run(app: ViewerApp) -> None:
+    """Open the window and run until it is closed (Ctrl-C closes it too, saving as a close does)."""
+    from imgui_bundle import immapp
+
+    from app.viewer.platform import choose_platform, prepare_glfw
+
+    prepare_glfw(choose_platform())
+    try:
+        immapp.run(app.runner_params(), immapp.AddOnsParams(with_implot=True))
+    except KeyboardInterrupt:
+        app.session.close()
+    finally:
+        if not app.closed:
+            app.session.close()

@@ -1,0 +1,291 @@
+"""The live session: a trainer running in a torch thread beside the UI, talking to it only in messages.
+
+The UI (or a test) sends commands (pause, resume, single step, stop, pause at N, config changes, training share)
+and reads, without ever blocking on a step: the events the trainer emits and the session's own messages
+(``poll()``), the latest model (``snapshot()``, the trainer's consistent copy), and a status line's figures
+(``status()``). The trainer never waits on a frame: commands are read between steps.
+
+A run is a list of stages (``Stage``): reconstruct, then stylize, or either alone. Each stage builds its trainer
+inside the thread (loading a scene or VGG takes seconds, and the window must stay live meanwhile), steps it to the
+end, and saves its outputs. Stop, window close and Ctrl-C save too: a reconstruction writes its checkpoint and PLY,
+a stylization its current model; an exception in the trainer becomes one line in the UI and the session goes on.
+
+The GIL: moderngl holds it while it draws, and a Python trainer needs it between its torch calls. ``training_share``
+(nerfview's "train utilisation") lets the trainer sleep a share of each step so a UI on a slow machine keeps up.
+"""
+
+from __future__ import annotations
+
+import queue
+import threading
+import time
+from collections import deque
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any, Callable
+
+from training.core.messages import Cancelled, ModelSnapshot, TrainerEvent
+
+STATES = ("idle", "loading", "running", "paused", "finishing", "finished", "stopped", "error")
+
+
+@dataclass(frozen=True)
+class SessionMessage:
+    """The session's own news: kind "stage" (a stage began: ``text`` names it), "state" (``text`` is one of
+    STATES), "saved" (``text`` is the path), "error" (one line), "info" (one line)."""
+
+    kind: str
+    text: str
+    stage: str = ""
+
+
+@dataclass
+class Stage:
+    """One stage of a run. ``build(previous)`` makes the trainer (on the training thread; ``previous`` is the last
+    stage's ``save`` result, or None); ``save(trainer, finished, cancel)`` writes the outputs and returns what the
+    next stage builds from; it runs when the schedule ends (finished=True) and on stop or error (finished=False,
+    where it must be quick: keep the model, skip the long final passes)."""
+
+    name: str
+    build: Callable[[Any], Any]
+    save: Callable[[Any, bool, Callable[[], bool]], Any]
+
+
+@dataclass
+class SessionStatus:
+    stage: str = ""
+    state: str = "idle"
+    step: int = 0
+    total: int = 0
+    steps_per_second: float = 0.0
+    seconds_left: float | None = None
+    error: str = ""
+    last_metrics: dict[str, float] = field(default_factory=dict)
+
+
+class LiveSession:
+    """Runs stages on a training thread. Every public method may be called from the UI thread and returns at once
+    (``close`` waits for the thread to save and end, at most ``timeout`` seconds)."""
+
+    def __init__(self, history: int = 5000):
+        self._commands: queue.Queue = queue.Queue()
+        self._out: queue.Queue = queue.Queue()
+        self._thread: threading.Thread | None = None
+        self._lock = threading.Lock()
+        self._trainer = None
+        self._status = SessionStatus()
+        self._stop = threading.Event()
+        self._paused = False
+        self._pause_at: int | None = None
+        self._share = 1.0
+        self._step_times: deque[float] = deque(maxlen=20)
+        self.saved: list[Path] = []
+        self.history: deque[dict[str, float]] = deque(maxlen=history)  # step metrics, for the curves
+
+    # ------------------------------------------------------------------ commands (UI thread)
+    def start(self, stages: list[Stage], paused: bool = False) -> None:
+        if self.running:
+            raise RuntimeError("a run is already going: stop it first")
+        self._stop.clear()
+        self._paused = paused
+        self._pause_at = None
+        self._commands = queue.Queue()
+        self.history.clear()
+        self._thread = threading.Thread(target=self._run, args=(list(stages),), name="splatstyler-trainer",
+                                        daemon=True)
+        self._set(state="loading", error="", step=0, total=0)
+        self._thread.start()
+
+    def pause(self) -> None:
+        self._commands.put(("pause",))
+
+    def resume(self) -> None:
+        self._commands.put(("resume",))
+
+    def single_step(self) -> None:
+        """One step, then paused."""
+        self._commands.put(("step",))
+
+    def pause_at(self, step: int | None) -> None:
+        self._commands.put(("pause_at", step))
+
+    def stop(self) -> None:
+        self._stop.set()
+        self._commands.put(("wake",))
+
+    def set_training_share(self, share: float) -> None:
+        """Fraction of the time the trainer may use, in (0, 1]; the rest it sleeps, leaving the GIL to the UI."""
+        self._share = min(1.0, max(0.05, float(share)))
+
+    @property
+    def training_share(self) -> float:
+        return self._share
+
+    def update_config(self, **changes: Any) -> str | None:
+        """Hand config changes to the running trainer (applied at its next step); the refusal as one line, or
+        None when accepted (or when no trainer runs)."""
+        trainer = self._trainer
+        if trainer is None:
+            return "no trainer is running"
+        try:
+            trainer.update_config(**changes)
+        except ValueError as exc:
+            return str(exc)
+        return None
+
+    def close(self, timeout: float = 600.0) -> None:
+        """Stop, let the stage save, wait for the thread."""
+        self.stop()
+        if self._thread is not None:
+            self._thread.join(timeout)
+
+    # ------------------------------------------------------------------ reads (UI thread)
+    @property
+    def running(self) -> bool:
+        return self._thread is not None and self._thread.is_alive()
+
+    @property
+    def trainer(self):
+        """The current trainer, for read-only queries that are themselves thread-safe (snapshot, config)."""
+        return self._trainer
+
+    def snapshot(self) -> ModelSnapshot | None:
+        trainer = self._trainer
+        return None if trainer is None else trainer.snapshot()
+
+    def poll(self) -> list[TrainerEvent | SessionMessage]:
+        """Everything that happened since the last poll, oldest first; never blocks."""
+        out = []
+        while True:
+            try:
+                out.append(self._out.get_nowait())
+            except queue.Empty:
+                return out
+
+    def status(self) -> SessionStatus:
+        with self._lock:
+            s = self._status
+            return SessionStatus(s.stage, s.state, s.step, s.total, s.steps_per_second, s.seconds_left, s.error,
+                                 dict(s.last_metrics))
+
+    # ------------------------------------------------------------------ the training thread
+    def _set(self, **fields_: Any) -> None:
+        with self._lock:
+            for k, v in fields_.items():
+                setattr(self._status, k, v)
+            if "state" in fields_:
+                self._out.put(SessionMessage("state", fields_["state"], self._status.stage))
+
+    def _on_event(self, event: TrainerEvent) -> None:
+        self._out.put(event)
+        if event.kind == "step":
+            self.history.append({"step": float(event.step), **event.metrics})
+            with self._lock:
+                self._status.step = event.step
+                self._status.total = int(event.metrics.get("total_iters", self._status.total))
+                self._status.last_metrics = event.metrics
+
+    def _handle(self, command: tuple) -> bool:
+        """Apply one command; True when it asks for exactly one step."""
+        name = command[0]
+        if name == "pause":
+            self._paused = True
+            self._set(state="paused")
+        elif name == "resume":
+            self._paused = False
+            self._set(state="running")
+        elif name == "pause_at":
+            self._pause_at = command[1]
+        elif name == "step":
+            self._paused = True
+            return True
+        return False
+
+    def _next_commands(self) -> bool:
+        """Drain the commands; while paused wait for one (no CPU spent). True when one step is asked for."""
+        one_step = False
+        while True:
+            try:
+                command = self._commands.get(block=self._paused and not one_step and not self._stop.is_set())
+            except queue.Empty:
+                return one_step
+            one_step = self._handle(command) or one_step
+            if self._stop.is_set():
+                return False
+
+    def _run(self, stages: list[Stage]) -> None:
+        previous = None
+        for stage in stages:
+            if self._stop.is_set():
+                break
+            with self._lock:
+                self._status.stage = stage.name
+            self._out.put(SessionMessage("stage", stage.name, stage.name))
+            self._set(state="loading")
+            trainer = None
+            try:
+                trainer = stage.build(previous)
+                trainer.add_listener(self._on_event)
+                self._trainer = trainer
+                self._set(state="paused" if self._paused else "running", total=trainer.total_iters,
+                          step=getattr(trainer, "step_count", getattr(trainer, "iteration", 0)))
+                self._train(trainer)
+                finished = trainer.done
+                self._set(state="finishing")
+                previous = stage.save(trainer, finished, self._stop.is_set)
+                if previous is not None:
+                    self._out.put(SessionMessage("saved", str(previous), stage.name))
+                    self.saved.append(Path(str(previous)))
+                if not finished:
+                    self._set(state="stopped")
+                    return
+            except Cancelled:
+                self._set(state="stopped")
+                return
+            except Exception as exc:  # one line in the UI; the window and the session go on
+                line = _one_line(exc)
+                self._set(state="error", error=line)
+                self._out.put(SessionMessage("error", line, stage.name))
+                if trainer is not None:
+                    try:
+                        saved = stage.save(trainer, False, lambda: True)
+                        if saved is not None:
+                            self._out.put(SessionMessage("saved", str(saved), stage.name))
+                            self.saved.append(Path(str(saved)))
+                    except Exception as exc2:  # noqa: BLE001  (the first error is the one to show)
+                        self._out.put(SessionMessage("error", f"could not save: {_one_line(exc2)}", stage.name))
+                return
+        self._set(state="finished" if not self._stop.is_set() else "stopped")
+
+    def _train(self, trainer) -> None:
+        while not trainer.done and not self._stop.is_set():
+            one_step = self._next_commands()
+            if self._stop.is_set():
+                return
+            if self._paused and not one_step:
+                continue
+            t0 = time.perf_counter()
+            trainer.step()
+            dt = time.perf_counter() - t0
+            self._step_times.append(dt)
+            mean = sum(self._step_times) / len(self._step_times)
+            step = self._status.step
+            if self._pause_at is not None and step >= self._pause_at:
+                self._pause_at = None
+                self._paused = True
+            with self._lock:
+                self._status.steps_per_second = 1.0 / mean if mean > 0 else 0.0
+                left = max(0, trainer.total_iters - step)
+                self._status.seconds_left = left * mean / max(self._share, 1e-3)
+            if one_step or (self._paused and self._status.state != "paused"):
+                self._set(state="paused")
+            if self._share < 1.0:
+                # sleeping lets go of the GIL: the UI thread draws while the trainer rests
+                self._stop.wait(dt * (1.0 - self._share) / self._share)
+
+
+def _one_line(exc: BaseException) -> str:
+    from training.core.errors import InputError
+
+    text = str(exc).strip().splitlines()[0] if str(exc).strip() else ""
+    return text if isinstance(exc, InputError) else f"{type(exc).__name__}: {text}"

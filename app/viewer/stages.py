@@ -1,0 +1,71 @@
+"""The stages a live session runs: reconstruction and stylization, built and saved as the CLI builds and saves them.
+
+A reconstruction stage writes OUT/checkpoint.pt (resumable with ``splatstyler reconstruct --resume``) and
+OUT/point_cloud.ply, whether it finished or was stopped; a stylization stage writes OUT/point_cloud.ply, after the
+post colour transfer when it finished, as it stands when stopped. Both hand the PLY's path to the next stage.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Any
+
+from app.viewer.session import Stage
+
+
+def reconstruct_stage(data: str | Path, out: str | Path, preset: str = "quick", downscale: int | None = None,
+                      **overrides: Any) -> Stage:
+    """3DGS with the paper's regularizers on DATA, the CLI's presets (``overrides``: ReconstructConfig fields)."""
+    out = Path(out)
+
+    def build(_previous):
+        from training.reconstruct.trainer import ReconstructConfig, Reconstructor
+        from training.scene.loader import load_scene
+
+        cfg = ReconstructConfig.from_preset(preset, **overrides)
+        if downscale is not None:
+            cfg.downscale = int(downscale)
+        return Reconstructor(load_scene(data, downscale=cfg.downscale), cfg)
+
+    def save(trainer, finished: bool, cancel) -> Path:
+        from training.model.ply_io import write_ply
+        from training.reconstruct.checkpoint import CHECKPOINT_NAME, save_checkpoint
+
+        out.mkdir(parents=True, exist_ok=True)
+        save_checkpoint(out / CHECKPOINT_NAME, trainer.state_dict())
+        write_ply(out / "point_cloud.ply", trainer.export_gaussians())
+        return out / "point_cloud.ply"
+
+    return Stage("reconstruct", build, save)
+
+
+def stylize_stage(data: str | Path, style: str | Path, out: str | Path, config=None, model: str | Path | None = None,
+                  vgg_weights: str | None = None) -> Stage:
+    """Stylize ``model`` (or the previous stage's PLY) after the painting ``style``; ``config`` a StylizeConfig."""
+    out = Path(out)
+
+    def build(previous):
+        from training.model.ply_io import read_ply
+        from training.scene.loader import load_scene
+        from training.stylize.pipeline import choose_downscale
+        from training.stylize.style_image import load_style_image
+        from training.stylize.trainer import StylizeConfig, Stylizer
+
+        source = Path(model) if model is not None else previous
+        if source is None:
+            raise ValueError("nothing to stylize: open a model or reconstruct first")
+        cfg = config or StylizeConfig(preset="quick")
+        painting = load_style_image(style)
+        scene = load_scene(data, downscale=choose_downscale(Path(data), cfg.render_max_side))
+        return Stylizer(read_ply(source), scene, painting, cfg, vgg_weights=vgg_weights, model_name=source)
+
+    def save(trainer, finished: bool, cancel) -> Path:
+        from training.model.ply_io import write_ply
+
+        if finished and not trainer.finished:
+            trainer.finish(cancel=cancel)
+        out.mkdir(parents=True, exist_ok=True)
+        write_ply(out / "point_cloud.ply", trainer.stylized_gaussians())
+        return out / "point_cloud.ply"
+
+    return Stage("stylize", build, save)

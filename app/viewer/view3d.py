@@ -1,0 +1,190 @@
+"""The 3D view: the models on the GPU, the camera under the mouse and keys, and when to draw.
+
+Drawing is the expensive part on software GL (and moderngl holds the GIL while it draws, starving the trainer), so
+the view draws only when something it shows changed: the camera, a model upload, a setting. While the camera moves
+it draws at ``motion_scale`` of the resolution and, once still for ``settle_s``, once more at full size. The last
+picture stays in an offscreen texture that every frame copies to the window for almost nothing.
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass
+
+import numpy as np
+
+from app.viewer.camera_control import ViewerCamera, nearest_camera
+
+MODES = ("color", "depth", "alpha", "points", "ellipsoids")
+PHOTO_MODES = ("off", "blend", "side")
+
+
+@dataclass
+class RenderSettings:
+    mode: str = "color"
+    background: tuple[float, float, float] = (0.0, 0.0, 0.0)
+    max_sh_degree: int = 3
+    split: bool = False
+    split_position: float = 0.5
+    show_frustums: bool = True
+    show_path: bool = True
+    photo: str = "off"
+    photo_alpha: float = 0.5
+    motion_scale: float = 0.5
+    training_scale: float = 1.0  # resolution of the still view while a trainer runs (it shares the CPU)
+    settle_s: float = 0.25
+
+
+class View3D:
+    """Owns the GL objects of the 3D view; every method runs on the GL (main) thread."""
+
+    def __init__(self, ctx, background_sort: bool = True):
+        from renderer_gl import SplatRenderer
+
+        self.ctx = ctx
+        self.renderer = SplatRenderer(ctx, background_sort=background_sort)
+        self.settings = RenderSettings()
+        self.camera: ViewerCamera | None = None
+        self._texture = None
+        self._fbo = None
+        self._size = (0, 0)
+        self.dirty = True
+        self._last_move = 0.0
+        self._full_res_pending = False
+        self._uploaded: dict[int, tuple[int, int]] = {}  # slot -> (version, geometry_version)
+        self.overlays = None  # renderer_gl Lines, or None
+        self.frames_drawn = 0
+        self.last_frame_s = 0.0
+
+    # ------------------------------------------------------------------ models
+    def show(self, snap, slot: int = 0) -> bool:
+        """Upload a ModelSnapshot into ``slot`` if it is newer than what is there: colours alone when only they
+        changed. Returns whether anything was uploaded."""
+        key = (snap.version, snap.geometry_version)
+        have = self._uploaded.get(slot)
+        if have == key:
+            return False
+        if have is not None and have[1] == snap.geometry_version and self.renderer.count(slot) == len(snap):
+            self.renderer.update_colors(snap.sh, snap.sh_degree, slot=slot)
+        else:
+            self.renderer.set_splats(snap.means, snap.scales, snap.quats, snap.opacities, snap.sh, snap.sh_degree,
+                                     slot=slot)
+        self._uploaded[slot] = key
+        self.dirty = True
+        return True
+
+    def clear(self, slot: int) -> None:
+        self.renderer.remove(slot)
+        self._uploaded.pop(slot, None)
+        self.dirty = True
+
+    def has_model(self, slot: int = 0) -> bool:
+        return self.renderer.count(slot) > 0
+
+    # ------------------------------------------------------------------ camera input
+    def moved(self) -> None:
+        self._last_move = time.perf_counter()
+        self._full_res_pending = True
+        self.dirty = True
+
+    def handle_input(self, imgui, dt: float, fly_speed: float) -> None:
+        """Orbit (left drag), pan (right or middle drag), zoom (wheel), fly (WASD, Q/E), roll (Z/C), when the
+        panels do not want the mouse or keyboard."""
+        if self.camera is None:
+            return
+        io = imgui.get_io()
+        if not io.want_capture_mouse:
+            dx, dy = io.mouse_delta.x, io.mouse_delta.y
+            if imgui.is_mouse_dragging(imgui.MouseButton_.left) and (dx or dy):
+                self.camera.orbit(dx, dy)
+                self.moved()
+            elif (imgui.is_mouse_dragging(imgui.MouseButton_.right)
+                  or imgui.is_mouse_dragging(imgui.MouseButton_.middle)) and (dx or dy):
+                self.camera.pan(dx, dy, max(self._size[1], 1))
+                self.moved()
+            if io.mouse_wheel:
+                self.camera.zoom(io.mouse_wheel)
+                self.moved()
+        if not io.want_capture_keyboard:
+            k = imgui.Key
+            axis = lambda pos, neg: float(imgui.is_key_down(pos)) - float(imgui.is_key_down(neg))  # noqa: E731
+            forward, right, up = axis(k.w, k.s), axis(k.d, k.a), axis(k.e, k.q)
+            if forward or right or up:
+                self.camera.fly(forward, right, up, fly_speed * dt)
+                self.moved()
+            roll = axis(k.c, k.z)
+            if roll:
+                self.camera.roll(roll * dt)
+                self.moved()
+
+    def snap_to(self, camera, cameras) -> None:
+        """Put the view at a dataset camera (keeping the orbit centre's distance)."""
+        distance = self.camera.target_distance if self.camera is not None else 1.0
+        up = self.camera.up if self.camera is not None else None
+        self.camera = ViewerCamera.from_camera(camera, up=up, target_distance=distance)
+        self.dirty = True
+
+    def nearest(self, cameras) -> int:
+        return nearest_camera(self.camera, cameras)
+
+    # ------------------------------------------------------------------ drawing
+    def _target(self, size: tuple[int, int]):
+        if size != self._size:
+            for obj in (self._fbo, self._texture):
+                if obj is not None:
+                    obj.release()
+            self._texture = self.ctx.texture(size, 4)
+            self._fbo = self.ctx.framebuffer(color_attachments=[self._texture])
+            self._size = size
+            self.dirty = True
+        return self._fbo
+
+    def needs_draw(self) -> bool:
+        settled = time.perf_counter() - self._last_move > self.settings.settle_s
+        return self.dirty or (self._full_res_pending and settled)
+
+    def draw(self, size: tuple[int, int], split_ready: bool, training: bool = False) -> bool:
+        """Render into the offscreen target if needed; returns whether it drew."""
+        if size[0] < 1 or size[1] < 1 or self.camera is None:
+            return False
+        fbo = self._target(size)
+        if not self.needs_draw():
+            return False
+        s = self.settings
+        moving = time.perf_counter() - self._last_move <= s.settle_s
+        scale = s.motion_scale if moving else (s.training_scale if training else 1.0)
+        if not moving:
+            self._full_res_pending = False
+        t0 = time.perf_counter()
+        fbo.use()
+        fbo.clear(*s.background, 1.0)
+        if self.has_model(0):
+            cam = self.camera.camera(*size)
+            split = s.split_position if (s.split and split_ready) else None
+            photo = None if s.photo == "off" else s.photo
+            self.renderer.render(cam, fbo, mode=s.mode, background=s.background, split=split,
+                                 max_sh_degree=s.max_sh_degree, scale=scale, photo=photo,
+                                 photo_alpha=s.photo_alpha, overlays=self.overlays)
+        self.ctx.finish()
+        self.last_frame_s = time.perf_counter() - t0
+        self.frames_drawn += 1
+        self.dirty = False
+        return True
+
+    def blit(self, screen) -> None:
+        """Copy the last picture to the window's framebuffer."""
+        if self._fbo is not None and screen.size == self._size:
+            self.ctx.copy_framebuffer(screen, self._fbo)
+
+    def read(self) -> np.ndarray | None:
+        """(H, W, 3) uint8 of the last picture, top row first."""
+        if self._fbo is None:
+            return None
+        data = self._fbo.read(components=3, alignment=1)
+        return np.frombuffer(data, np.uint8).reshape(self._size[1], self._size[0], 3)[::-1].copy()
+
+    def release(self) -> None:
+        self.renderer.release()
+        for obj in (self._fbo, self._texture):
+            if obj is not None:
+                obj.release()

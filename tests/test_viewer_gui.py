@@ -1,0 +1,196 @@
+"""The viewer, driven through its own window by imgui's Test Engine: the real application, its real panels, a
+real trainer thread. The window opens on GLFW's null platform with an EGL context when there is no display (CI),
+on X11 under a display; both render the whole window off screen or on, and screenshots are checked for content.
+
+Each test runs the window in a fresh subprocess: one GLFW/imgui runner per process, as a user's session has.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import subprocess
+import sys
+import textwrap
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+ROOT = Path(__file__).resolve().parents[1]
+pytestmark = pytest.mark.slow
+
+
+@pytest.fixture(scope="module")
+def demo_scene(tmp_path_factory):
+    """The generated demo scene (32 views at 256x192, cached between runs), its painting, and a model of it:
+    Gaussians at its surface points (what a reconstruction starts from), opaque enough to cover the views."""
+    import torch
+
+    from assets.demo.assets import demo_assets
+    from training.model.gaussian_init import gaussians_from_points
+    from training.model.ply_io import write_ply
+    from training.scene.loader import load_scene
+
+    assets = demo_assets()
+    scene = load_scene(assets.scene_dir, load_images=False)
+    g = gaussians_from_points(scene.points, scene.point_colors, sh_degree=1)
+    g.opacity_logits = torch.full_like(g.opacity_logits, 2.0)
+    model = tmp_path_factory.mktemp("model") / "model.ply"
+    write_ply(model, g)
+    return assets.scene_dir, assets.style_image, model
+
+
+def run_gui(script: str, tmp_path: Path, timeout: int = 420) -> dict:
+    """Run a viewer test script in its own process; it writes its findings as JSON, which this returns."""
+    result_file = tmp_path / "result.json"
+    env = dict(os.environ, RESULT=str(result_file), OUT=str(tmp_path))
+    code = textwrap.dedent(script)
+    proc = subprocess.run([sys.executable, "-c", code], cwd=ROOT, env=env, capture_output=True, text=True,
+                          timeout=timeout)
+    assert proc.returncode == 0, f"viewer process failed ({proc.returncode}):\n{proc.stdout[-3000:]}\n{proc.stderr[-5000:]}"
+    return json.loads(result_file.read_text())
+
+
+def check_screenshot(path: Path) -> None:
+    """A real frame: not blank, not uniform, many colours (panels, text, splats)."""
+    from training.scene.image_io import read_image
+
+    img = read_image(path)
+    assert img.shape[0] >= 400 and img.shape[1] >= 600
+    assert float(img.std()) > 0.05, "uniform screenshot"
+    colours = len(np.unique((img * 255).astype(np.uint8).reshape(-1, 3), axis=0))
+    assert colours > 200, f"only {colours} colours in the screenshot"
+
+
+PRELUDE = """
+import json, os, time
+from pathlib import Path
+from imgui_bundle.immapp import testing
+from app.viewer.app import Paths, ViewerApp
+from app.viewer.platform import choose_platform, prepare_glfw
+
+OUT = Path(os.environ["OUT"])
+found = {}
+
+def runner_params(app):
+    from imgui_bundle import hello_imgui, imgui
+
+    params = app.runner_params()
+
+    def register_tests():  # a training step takes seconds here: the engine's 60 s watchdog would abort the test
+        io = imgui.test_engine.get_io(hello_imgui.get_imgui_test_engine())
+        io.config_watchdog_warning, io.config_watchdog_kill_test, io.config_watchdog_kill_app = 300, 600, 900
+
+    params.callbacks.register_tests = register_tests
+    return params
+
+
+def run(app, test):
+    from imgui_bundle import immapp
+
+    prepare_glfw(choose_platform())
+    testing.run(test_function=test, runner_params=runner_params(app),
+                add_ons_params=immapp.AddOnsParams(with_implot=True))
+
+
+def wait(ctx, condition, seconds, what):
+    t0 = time.time()
+    while not condition():
+        if time.time() - t0 > seconds:
+            raise AssertionError(f"timed out after {seconds} s waiting for {what}")
+        ctx.yield_(2)
+        time.sleep(0.02)
+"""
+
+
+def test_live_stylization_tau_slider_view_order_and_pause(demo_scene, tmp_path):
+    scene_dir, style, model = demo_scene
+    found = run_gui(PRELUDE + f"""
+app = ViewerApp(Paths(model={str(model)!r}, data={str(scene_dir)!r}, style={str(style)!r}, out=str(OUT / "out")),
+                start="stylize", stylize_overrides={{"max_side": 64, "iters_per_view": 3}})
+
+def test(ctx):
+    wait(ctx, lambda: app.session.status().state == "running" and app.session.status().step >= 2, 180,
+         "the stylizer to run")
+    trainer = app.session.trainer
+    found["tau_before"] = trainer.config.tau
+    ctx.set_ref("Style")
+    ctx.item_input_value("tau", 0.05)          # the slider, through the UI
+    found["tau_in_panel"] = app.stylize_config.tau
+    changed_at = app.session.status().step
+    new_tau = lambda h: abs(h.get("tau", 0.0) - 0.05) < 1e-6  # the slider holds float32
+    wait(ctx, lambda: any(new_tau(h) for h in list(app.session.history)), 60,
+         "a step that used the new tau")
+    found["tau_after"] = trainer.config.tau
+    found["loss_tau_after"] = trainer.style_loss.tau
+    found["first_step_with_new_tau"] = min(h["step"] for h in list(app.session.history) if new_tau(h))
+    found["changed_at"] = changed_at
+    ctx.set_ref("View order")
+    ctx.yield_(3)
+    found["drawn_order"] = list(app.drawn_order)
+    found["trainer_order"] = [item.source_index for item in trainer.trajectory if not item.is_virtual]
+    found["capacity_shape"] = list(trainer.capacity_map().shape)
+    ctx.set_ref("Training")
+    ctx.item_click("Pause")
+    wait(ctx, lambda: app.session.status().state == "paused", 30, "the pause")
+    paused_step = trainer.iteration
+    t0 = time.time()
+    while time.time() - t0 < 1.5:
+        ctx.yield_(2)
+        time.sleep(0.05)
+    found["steps_while_paused"] = trainer.iteration - paused_step
+    ctx.item_click("Step")
+    wait(ctx, lambda: trainer.iteration == paused_step + 1, 30, "one step")
+    ctx.yield_(5)
+    found["after_single_step"] = trainer.iteration - paused_step
+    found["state_after_single_step"] = app.session.status().state
+    app.view.dirty = True
+    ctx.yield_(3)
+    testing.capture(ctx, str(OUT / "viewer_stylize.png"))
+
+run(app, test)
+found["saved"] = [str(p) for p in app.session.saved]
+found["error"] = app.error
+Path(os.environ["RESULT"]).write_text(json.dumps(found))
+""", tmp_path)
+    assert found["error"] == ""
+    assert found["tau_before"] == 0.5 and found["tau_in_panel"] == pytest.approx(0.05, abs=1e-6)
+    assert found["tau_after"] == pytest.approx(0.05, abs=1e-6) and found["loss_tau_after"] == found["tau_after"]
+    assert found["first_step_with_new_tau"] > found["changed_at"]
+    assert found["drawn_order"] == found["trainer_order"] and len(found["trainer_order"]) == 32
+    assert len(found["capacity_shape"]) == 2 and min(found["capacity_shape"]) > 1
+    assert found["steps_while_paused"] == 0
+    assert found["after_single_step"] == 1 and found["state_after_single_step"] == "paused"
+    check_screenshot(tmp_path / "viewer_stylize.png")
+    saved = [Path(p) for p in found["saved"]]
+    assert saved and saved[-1].name == "point_cloud.ply" and saved[-1].exists()  # kept on close
+
+
+def test_closing_the_window_checkpoints_the_reconstruction(demo_scene, tmp_path):
+    scene_dir, style, _ = demo_scene
+    found = run_gui(PRELUDE + f"""
+app = ViewerApp(Paths(data={str(scene_dir)!r}, out=str(OUT / "out")), start="reconstruct", recon_iters=3000,
+                downscale=4)
+
+def test(ctx):
+    wait(ctx, lambda: app.session.status().step >= 20, 180, "20 reconstruction steps")
+    found["steps_at_close"] = app.session.status().step
+    app.view.dirty = True
+    ctx.yield_(3)
+    testing.capture(ctx, str(OUT / "viewer_reconstruct.png"))
+    # returning closes the window, as the user's close button does
+
+run(app, test)
+found["saved"] = [str(p) for p in app.session.saved]
+found["state"] = app.session.status().state
+Path(os.environ["RESULT"]).write_text(json.dumps(found))
+""", tmp_path)
+    from training.reconstruct.checkpoint import load_checkpoint
+
+    assert found["state"] == "stopped"
+    ckpt = tmp_path / "out" / "reconstruction" / "checkpoint.pt"
+    state = load_checkpoint(ckpt)
+    assert found["steps_at_close"] <= state["step"] < 3000  # saved where it stopped, not at the end
+    assert (tmp_path / "out" / "reconstruction" / "point_cloud.ply").exists()
+    check_screenshot(tmp_path / "viewer_reconstruct.png")
