@@ -28,6 +28,10 @@ class View:
         return -R.T @ t
 
     @property
+    def K(self) -> np.ndarray:
+        return np.array([[self.fx, 0.0, self.cx], [0.0, self.fy, self.cy], [0.0, 0.0, 1.0]])
+
+    @property
     def forward(self) -> np.ndarray:
         f = self.world_to_camera[2, :3]
         return f / np.linalg.norm(f)

