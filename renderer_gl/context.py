@@ -35,6 +35,12 @@ def context_backend(ctx: moderngl.Context) -> str:
     return f"{info.get('GL_RENDERER', '?')}, GL {info.get('GL_VERSION', '?')}"
 
 
+def is_software_gl(ctx: moderngl.Context) -> bool:
+    """Whether the context renders on the CPU (Mesa's llvmpipe, softpipe or swrast)."""
+    renderer = str(ctx.info.get("GL_RENDERER", "")).lower()
+    return any(name in renderer for name in ("llvmpipe", "softpipe", "swrast", "software"))
+
+
 class Offscreen:
     """An RGBA8 colour target with its framebuffer, of a fixed size, read back as top-row-first arrays."""
 

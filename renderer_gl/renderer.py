@@ -17,12 +17,17 @@ import numpy as np
 import moderngl
 from renderer_gl import constants as C
 from renderer_gl.camera import View, view
+from renderer_gl.context import is_software_gl
 from renderer_gl.overlays import Lines
 from renderer_gl.shader_source import source
 from renderer_gl.sort import BackgroundSorter, back_to_front, turned
 from renderer_gl.splats import GPUSplats, SplatArrays
 
 MODES = ("color", "depth", "alpha", "points", "ellipsoids")
+# How quads are made: "instanced" (4 vertices per Gaussian, each projecting it: cheap on a GPU) or "geometry" (one
+# point per Gaussian expanded by a geometry shader: half the frame time on llvmpipe, whose vertex stage runs on
+# one thread). "auto" picks geometry on software GL. Both draw the same pixels.
+QUAD_PATHS = ("auto", "instanced", "geometry")
 PHOTO_MODES = (None, "blend", "side")
 _SPLAT_MODE = {"color": 0, "alpha": 0, "depth": 1, "ellipsoids": 2}
 _RESOLVE_MODE = {"color": 0, "points": 0, "ellipsoids": 0, "depth": 1, "alpha": 2}
@@ -63,18 +68,28 @@ class SplatRenderer:
     """
 
     def __init__(self, ctx: moderngl.Context, accum_dtype: str = "f4", sort_precision: str = "auto",
-                 sort_tolerance_deg: float = 0.1, background_sort: bool = False):
+                 sort_tolerance_deg: float = 0.1, background_sort: bool = False, quads: str = "auto"):
         if accum_dtype not in ("f1", "f2", "f4"):
             raise ValueError(f"accum_dtype must be f1, f2 or f4, got {accum_dtype!r}")
+        if quads not in QUAD_PATHS:
+            raise ValueError(f"quads must be one of {', '.join(QUAD_PATHS)}, got {quads!r}")
+        if quads == "auto":
+            quads = "geometry" if is_software_gl(ctx) else "instanced"
+        self.quads = quads
         self.ctx = ctx
         self.accum_dtype = accum_dtype
         self.sort_precision = sort_precision
         self.sort_tolerance_deg = float(sort_tolerance_deg)
         self._sorter = BackgroundSorter() if background_sort else None
         self._slots: dict[int, GPUSplats] = {}
-        self._splat_prog = ctx.program(vertex_shader=source("common.glsl", "splat.vert.glsl"),
-                                       fragment_shader=source("splat.frag.glsl"))
-        self._point_prog = ctx.program(vertex_shader=source("common.glsl", "points.vert.glsl"),
+        if quads == "instanced":
+            self._splat_prog = ctx.program(vertex_shader=source("common.glsl", "project.glsl", "splat.vert.glsl"),
+                                           fragment_shader=source("splat.frag.glsl"))
+        else:
+            self._splat_prog = ctx.program(
+                vertex_shader=source("common.glsl", "project.glsl", "splat_point.vert.glsl"),
+                geometry_shader=source("splat.geom.glsl"), fragment_shader=source("splat.frag.glsl"))
+        self._point_prog = ctx.program(vertex_shader=source("common.glsl", "project.glsl", "points.vert.glsl"),
                                        fragment_shader=source("points.frag.glsl"))
         self._resolve_prog = ctx.program(vertex_shader=source("fullscreen.vert.glsl"),
                                          fragment_shader=source("resolve.frag.glsl"))
@@ -173,9 +188,11 @@ class SplatRenderer:
             return cached[1]
         if cached is not None:
             cached[1].release()
-        if kind == "splat":
+        if kind == "splat" and self.quads == "instanced":
             vao = self.ctx.vertex_array(self._splat_prog, [(self._corners, "2f", "a_corner"),
                                                            (model.index_buffer, "u/i", "a_index")])
+        elif kind == "splat":
+            vao = self.ctx.vertex_array(self._splat_prog, [(model.index_buffer, "u", "a_index")])
         else:
             vao = self.ctx.vertex_array(self._point_prog, [(model.index_buffer, "u", "a_index")])
         self._vaos[key] = (model.index_buffer, vao)
@@ -204,7 +221,10 @@ class SplatRenderer:
         else:
             _set(prog, "u_mode", _SPLAT_MODE[mode])
             _set(prog, "u_outline_sigma", params["outline_sigma"])
-            self._vao(slot, "splat").render(moderngl.TRIANGLE_STRIP, vertices=4, instances=model.n)
+            if self.quads == "instanced":
+                self._vao(slot, "splat").render(moderngl.TRIANGLE_STRIP, vertices=4, instances=model.n)
+            else:
+                self._vao(slot, "splat").render(moderngl.POINTS, vertices=model.n)
         return model.n
 
     def splat_pass(self, camera, mode: str = "color", *, slot: int = 0, split: float | None = None,

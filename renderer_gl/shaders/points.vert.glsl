@@ -1,11 +1,6 @@
 // Gaussian centres as points, drawn in the same back-to-front order as the splats (no depth buffer needed).
 in uint a_index;
-uniform vec4 u_intr;
-uniform vec2 u_size;
-uniform float u_near;
-uniform float u_far;
 uniform float u_point_size;
-uniform vec4 u_tint;
 flat out vec4 v_color;
 
 void main() {
@@ -18,7 +13,7 @@ void main() {
         return;
     }
     vec2 pix = vec2(u_intr.x * p.x / p.z + u_intr.z, u_intr.y * p.y / p.z + u_intr.w);
-    gl_Position = vec4(2.0 * pix.x / u_size.x - 1.0, 1.0 - 2.0 * pix.y / u_size.y, 0.0, 1.0);
+    gl_Position = to_clip(pix);
     gl_PointSize = u_point_size;
     vec3 rgb = sh_color(gid, t0.xyz);
     if ((flags & 1u) != 0u) rgb = mix(rgb, u_tint.rgb, u_tint.a);
