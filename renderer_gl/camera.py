@@ -45,13 +45,15 @@ class View:
 
     def jacobian_limits(self) -> tuple[float, float, float, float]:
         """The training rasterizer's clamp of x/z and y/z for the EWA Jacobian: 1.3x the field of view."""
+        from renderer_gl.constants import FOV_CLAMP_MARGIN as m
+
         tan_x = 0.5 * self.width / self.fx
         tan_y = 0.5 * self.height / self.fy
         return (
-            (self.width - self.cx) / self.fx + 0.3 * tan_x,
-            self.cx / self.fx + 0.3 * tan_x,
-            (self.height - self.cy) / self.fy + 0.3 * tan_y,
-            self.cy / self.fy + 0.3 * tan_y,
+            (self.width - self.cx) / self.fx + m * tan_x,
+            self.cx / self.fx + m * tan_x,
+            (self.height - self.cy) / self.fy + m * tan_y,
+            self.cy / self.fy + m * tan_y,
         )
 
     def clip_from_world(self, near: float, far: float) -> np.ndarray:

@@ -1,5 +1,6 @@
 """Loads the GLSL sources shipped in renderer_gl/shaders and prefixes them with the shared constants, so the
-shaders and the training rasterizer take their numbers from one place (renderer_gl/constants.py)."""
+shaders and the training rasterizer take their numbers from one place (training.raster.constants and
+training.model.sh_constants, through renderer_gl/constants.py)."""
 
 from __future__ import annotations
 
