@@ -7,10 +7,12 @@ median milliseconds of rasterize (forward), VGG forward (render, plus content/st
 similarity/top-K, Sinkhorn and guide (CCFT's own breakdown, inside "loss"), backward (VGG and rasterizer) and the
 optimiser step.
 
-Stylization trains colours only, and the rasterizer's backward then skips every geometric term. Each row also
-runs the same loss again with the geometry tensors requiring gradients (means, quats, scales, opacities: the full
-backward, as reconstruction runs it) and reports it as ``full_*`` with ``colour_only_speedup`` = colour-only it/s
-over full it/s, both measured in this run, one after the other.
+Stylization trains colours only: the cpu rasterizer's backward then skips every geometric term, and it reuses the
+frozen geometry's projection and compositing weights while a view lasts (docs/rasterizer.md). Each row also runs
+a second Stylizer whose geometry tensors require gradients (means, quats, scales, opacities), which forces the full
+backward and rules out that reuse, as in reconstruction; it is reported as ``full_*``, with
+``colour_only_speedup`` = colour-only it/s over full it/s. The two take turns, one step each, so a shared
+machine's load affects both alike.
 """
 
 from __future__ import annotations
@@ -66,12 +68,11 @@ def run(args: argparse.Namespace) -> list[dict]:
                                    backend=backend, device=str(device))
             row = {"loss": loss, "backend": backend, "device": str(device), "gaussians": len(gaussians),
                    "size": f"{args.width}x{args.height}"}
-            for variant in ("colour", "full"):
-                stylizer = Stylizer(gaussians, scene, style, copy.deepcopy(config), vgg=vgg)
-                geometry = _train_geometry(stylizer) if variant == "full" else []
-                timed = _time_steps(stylizer, geometry, args.warmup, args.iters)
-                prefix = "" if variant == "colour" else "full_"
-                row.update({prefix + key: value for key, value in timed.items()})
+            colour = Stylizer(gaussians, scene, style, copy.deepcopy(config), vgg=vgg)
+            full = Stylizer(gaussians, scene, style, copy.deepcopy(config), vgg=vgg)
+            timed = _time_steps([(colour, []), (full, _train_geometry(full))], args.warmup, args.iters)
+            row.update(timed[0])
+            row.update({"full_" + key: value for key, value in timed[1].items()})
             row["colour_only_speedup"] = row["it_per_s"] / row["full_it_per_s"]
             rows.append(row)
     return rows
@@ -93,25 +94,34 @@ def _train_geometry(stylizer) -> list:
     return tensors
 
 
-def _time_steps(stylizer, geometry: list, warmup: int, iters: int) -> dict:
+def _time_steps(runs: list, warmup: int, iters: int) -> list[dict]:
+    """Steps the (stylizer, geometry) pairs in turn, one step each per round, so that a shared machine's load
+    changes affect every variant alike and their ratio stays meaningful; returns one timing dict per pair."""
     import statistics
     import time
 
-    def step():
+    def step(stylizer, geometry):
         for t in geometry:  # the stylizer's optimiser only clears the colours' gradients
             t.grad = None
         return stylizer.step()
 
     for _ in range(warmup):
-        step()
-    samples: dict[str, list[float]] = {}
-    t0 = time.perf_counter()
+        for stylizer, geometry in runs:
+            step(stylizer, geometry)
+    elapsed = [0.0] * len(runs)
+    samples: list[dict[str, list[float]]] = [{} for _ in runs]
     for _ in range(iters):
-        for key, value in step()["timings"].items():
-            samples.setdefault(key, []).append(value)
-    elapsed = time.perf_counter() - t0
-    out = {"it_per_s": iters / elapsed, "ms_per_it": 1000 * elapsed / iters}
-    for key in STAGES:
-        if key in samples:
-            out[f"{key}_ms"] = 1000 * statistics.median(samples[key])
+        for k, (stylizer, geometry) in enumerate(runs):
+            t0 = time.perf_counter()
+            timings = step(stylizer, geometry)["timings"]
+            elapsed[k] += time.perf_counter() - t0
+            for key, value in timings.items():
+                samples[k].setdefault(key, []).append(value)
+    out = []
+    for k in range(len(runs)):
+        row = {"it_per_s": iters / elapsed[k], "ms_per_it": 1000 * elapsed[k] / iters}
+        for key in STAGES:
+            if key in samples[k]:
+                row[f"{key}_ms"] = 1000 * statistics.median(samples[k][key])
+        out.append(row)
     return out
