@@ -5,7 +5,8 @@ context (EGL unless ``--backend``), on ``app.bench.raster``'s scene (a fixed amo
 
 - ``frame_ms``: a frame with the camera still (no sort): splat pass into the float accumulation target, resolve
   into an RGBA8 framebuffer, ``glFinish``; ``frame_half_ms`` the same at half resolution (the viewer's size while
-  the camera moves); ``frame_f1_ms`` with an 8-bit accumulation target;
+  the camera moves); ``frame_f1_ms`` with an 8-bit accumulation target; ``frame_instanced_ms`` (or
+  ``frame_geometry_ms``) with the quad path that ``quads="auto"`` did not pick (``quads`` names the one it did);
 - ``sort_float_ms`` / ``sort_u16_ms``: numpy back-to-front order with exact float keys / 16-bit keys;
   ``upload_ms``: writing that order to the index buffer (with ``glFinish``); ``sort_upload_ms``: the renderer's
   default ("auto") sort plus upload, what a turning camera adds to a frame;
@@ -91,6 +92,12 @@ def run(args: argparse.Namespace) -> list[dict]:
         r8.set_splats(means, scales, quats, opac, sh, 3)
         row["frame_f1_ms"] = _median_ms(lambda: frame(1.0, r8), args.repeat)
         r8.release()
+        other = "instanced" if r.quads == "geometry" else "geometry"
+        ro = SplatRenderer(ctx, sort_tolerance_deg=1e9, quads=other)
+        ro.set_splats(means, scales, quats, opac, sh, 3)
+        row[f"frame_{other}_ms"] = _median_ms(lambda: frame(1.0, ro), args.repeat)
+        ro.release()
+        row["quads"] = r.quads
         model = r._slots[0]
         fwd = cam.forward
         order = back_to_front(model.means, fwd, "float")
