@@ -304,9 +304,11 @@ class SplatRenderer:
         info = self.splat_pass(v, mode, slot=slot, split=split, max_sh_degree=max_sh_degree, scale=scale,
                                **splat_params)
         if mode == "depth":
-            if depth_range is None:
-                depth_range = self.depth_range(v, slot if split is None else 0)
-            info.depth_range = tuple(map(float, depth_range))
+            range_slot = slot if split is None else 0
+            if depth_range is None and range_slot in self._slots:
+                depth_range = self.depth_range(v, range_slot)
+            if depth_range is not None:
+                info.depth_range = tuple(map(float, depth_range))
         x, y, w, h = viewport if viewport is not None else (0, 0, *framebuffer.size)
         rects = [(x, y, w, h)] if photo != "side" else [(x, y, w // 2, h), (x + w // 2, y, w - w // 2, h)]
         framebuffer.use()

@@ -361,3 +361,15 @@ np.save({str(tmp_path / "osmesa.npy")!r}, r.render_arrays(camera()[0], ("rgb",))
     ctx.release()
     assert osmesa_rgb.shape == egl_rgb.shape and egl_rgb.max() > 0.1
     np.testing.assert_allclose(osmesa_rgb, egl_rgb, atol=1e-5)
+
+
+def test_an_empty_renderer_draws_the_background(ctx):
+    """The viewer draws before any model arrives: every mode shows the background, nothing raises."""
+    r = SplatRenderer(ctx)
+    off = Offscreen(ctx, 32, 24)
+    cam = view(world_to_camera=np.eye(4), K=[[30, 0, 16], [0, 30, 12], [0, 0, 1]], width=32, height=24)
+    for mode in ("color", "depth", "points", "ellipsoids"):
+        assert r.render(cam, off.fbo, mode=mode, background=(0.5, 0.5, 0.5)).instances == 0
+        assert (off.read() == 128).all()
+    off.release()
+    r.release()
