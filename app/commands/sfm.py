@@ -6,11 +6,15 @@ import argparse
 
 
 def register(sub: argparse._SubParsersAction) -> None:
+    from training.scene.sfm import CAMERA_MODELS
+
     parser = sub.add_parser(
         "sfm", help="structure from motion: photos folder -> COLMAP scene folder (images/ + sparse/0)",
         description="Run pycolmap on a folder of photos: SIFT features, matching (exhaustive for up to 50 photos, "
-                    "sequential in name order above), incremental mapping, undistortion. Writes DATA/images, "
-                    "DATA/sparse/0 and DATA/database.db, which `splatstyler reconstruct DATA` reads.")
+                    "sequential in name order above), incremental mapping (retried with relaxed initialisation "
+                    "when it finds no initial pair or places fewer than half the photos), undistortion. Writes "
+                    "DATA/images, DATA/sparse/0, DATA/database.db and DATA/sfm_report.json (quality summary), "
+                    "which `splatstyler reconstruct DATA` reads.")
     parser.add_argument("photos", metavar="PHOTOS", help="folder holding the photos (PNG, JPEG, TIFF, EXR, ...)")
     parser.add_argument("-o", "--output", metavar="DATA", required=True,
                         help="scene folder to create (must not already hold images/ or sparse/)")
@@ -20,6 +24,13 @@ def register(sub: argparse._SubParsersAction) -> None:
                         help="SIFT features per photo at most (default 8192; 1024-2048 is faster on small photos)")
     parser.add_argument("--matcher", choices=("auto", "exhaustive", "sequential"), default="auto",
                         help="auto: exhaustive for up to 50 photos, sequential (name order) above")
+    parser.add_argument("--camera-model", choices=CAMERA_MODELS, default="SIMPLE_RADIAL",
+                        help="lens model shared by photos of one size: SIMPLE_RADIAL (default: focal + one "
+                             "radial term), OPENCV (two focals, principal point, 4 distortion terms: wide or "
+                             "strongly distorted lenses), PINHOLE (already undistorted photos)")
+    parser.add_argument("--refine-principal-point", action="store_true",
+                        help="let bundle adjustment move the principal point off the image centre (better "
+                             "rotations when the true one is off centre; needs many photos to be stable)")
     parser.add_argument("--verbose", action="store_true", help="show COLMAP's own log lines")
     parser.set_defaults(func=run)
 
@@ -27,17 +38,20 @@ def register(sub: argparse._SubParsersAction) -> None:
 def run(args: argparse.Namespace) -> int:
     import sys
 
-    from training.scene.sfm import run_sfm
+    from training.scene.sfm import REPORT_NAME, name_list, run_sfm, summary_line
 
     result = run_sfm(args.photos, args.output, max_size=args.max_size, max_features=args.max_features,
                      matcher=args.matcher, log=lambda line: print(line, flush=True),
-                     progress=sys.stderr.isatty(), verbose=args.verbose)
+                     progress=sys.stderr.isatty(), verbose=args.verbose, camera_model=args.camera_model,
+                     refine_principal_point=args.refine_principal_point)
     total = sum(result.seconds.values())
     stages = ", ".join(f"{k} {v:.1f}s" for k, v in result.seconds.items())
-    print(f"registered {result.num_registered}/{result.num_photos} photos, {result.num_points} points, "
-          f"{result.matcher} matching; {total:.1f} s ({stages})")
-    print(f"scene written to {result.output} (images/, sparse/0)")
-    if result.num_registered < result.num_photos:
-        print(f"note: {result.num_photos - result.num_registered} photos could not be placed and are left out",
-              file=sys.stderr)
+    print(f"{summary_line(result.report)}; {result.matcher} matching; {total:.1f} s ({stages})")
+    print(f"scene written to {result.output} (images/, sparse/0, {REPORT_NAME})")
+    if result.no_overlap:
+        print(f"note: {len(result.no_overlap)} photos overlap no other photo and are left out: "
+              f"{name_list(result.no_overlap)}", file=sys.stderr)
+    if result.unregistered:
+        print(f"note: {len(result.unregistered)} photos could not be placed and are left out: "
+              f"{name_list(result.unregistered)}", file=sys.stderr)
     return 0
