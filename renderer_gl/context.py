@@ -23,7 +23,9 @@ def create_context(backend: str = "auto", require: int = GL_REQUIRE) -> moderngl
                 return moderngl.create_standalone_context(backend="egl", require=require)
             from renderer_gl.osmesa import OSMesaLoader
 
-            return moderngl.create_context(standalone=True, require=require, context=OSMesaLoader())
+            ctx = moderngl.create_context(standalone=True, require=require, context=OSMesaLoader())
+            ctx.extra = {"gl_direct": False}  # OSMesa's functions are not reachable through glvnd's libGL
+            return ctx
         except Exception as exc:  # each backend fails in its own way (OSError, moderngl.Error, ValueError)
             errors.append(f"{name}: {exc}")
     raise RuntimeError("no OpenGL context could be created (" + "; ".join(errors) + ")")

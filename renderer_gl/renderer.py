@@ -16,6 +16,7 @@ import numpy as np
 
 import moderngl
 from renderer_gl import constants as C
+from renderer_gl import gl_direct
 from renderer_gl.camera import View, view
 from renderer_gl.context import is_software_gl
 from renderer_gl.overlays import Lines
@@ -222,9 +223,9 @@ class SplatRenderer:
             _set(prog, "u_mode", _SPLAT_MODE[mode])
             _set(prog, "u_outline_sigma", params["outline_sigma"])
             if self.quads == "instanced":
-                self._vao(slot, "splat").render(moderngl.TRIANGLE_STRIP, vertices=4, instances=model.n)
+                gl_direct.draw(self._vao(slot, "splat"), moderngl.TRIANGLE_STRIP, 4, instances=model.n)
             else:
-                self._vao(slot, "splat").render(moderngl.POINTS, vertices=model.n)
+                gl_direct.draw(self._vao(slot, "splat"), moderngl.POINTS, model.n)
         return model.n
 
     def splat_pass(self, camera, mode: str = "color", *, slot: int = 0, split: float | None = None,

@@ -14,7 +14,8 @@ context (EGL unless ``--backend``), on ``app.bench.raster``'s scene (a fixed amo
 - ``cpu_fwd_ms``: ``rasterize(backend="cpu")`` forward without gradients, same scene and size;
   ``cpu_over_gl``: cpu_fwd_ms / frame_ms.
 
-Times are medians over ``--repeat`` runs after one warm-up.
+Times are medians over ``--repeat`` runs after one warm-up. ``--live`` measures the viewer beside a trainer
+instead (app/bench/viewer_live.py).
 """
 
 from __future__ import annotations
@@ -36,6 +37,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--gpu-sort-max", type=int, default=100_000,
                         help="measure the compute-shader sort up to this many Gaussians (slow on software GL)")
     parser.add_argument("--no-cpu", action="store_true", help="skip the CPU rasterizer comparison")
+    parser.add_argument("--live", action="store_true",
+                        help="instead: training steps/s with the viewer window open (camera still, camera moving) "
+                             "against headless, and input-to-frame latency at 100k splats (app/bench/viewer_live.py)")
+    parser.add_argument("--seconds", type=float, default=20.0, help="--live: seconds measured per run (default 20)")
 
 
 def _median_ms(fn, repeat: int) -> float:
@@ -57,6 +62,10 @@ def _parse_size(text: str) -> tuple[int, int]:
 
 
 def run(args: argparse.Namespace) -> list[dict]:
+    if args.live:
+        from app.bench.viewer_live import run_live
+
+        return run_live(args.seconds)
     import numpy as np
 
     from app.bench.raster import bench_scene

@@ -298,7 +298,8 @@ class ViewerApp:
                 elif item.kind == "warning":
                     self.say(f"warning: {item.message}")
         now = time.perf_counter()
-        if self.session.trainer is not None and now - self._last_snapshot_at >= self.refresh_s:
+        if (self.session.trainer is not None and now - self._last_snapshot_at >= self.refresh_s
+                and (not self.session.running or self.view.may_draw_now())):
             snap = self.session.snapshot()
             self._last_snapshot_at = now
             if snap is not None and self.view.show(snap, 0):
@@ -434,8 +435,9 @@ class ViewerApp:
             if imgui.is_key_pressed(imgui.Key.space):
                 (self.session.resume if self.session.status().state == "paused" else self.session.pause)()
         panels.draw_all(self)
-        if self.session.running or self.view.needs_draw():
-            hello_imgui.get_runner_params().fps_idling.fps_idle = IDLE_FPS
+        if self.view.needs_draw(self.session.running) or self.view.flying:
+            # a camera in motion (a held key sends no new events) or a picture still to draw: next frame now
+            hello_imgui.request_refresh()
 
     def runner_params(self, title: str = "splatstyler", size=(1280, 800)):
         from imgui_bundle import hello_imgui
@@ -450,6 +452,13 @@ class ViewerApp:
         # idle soon after the last input
         rp.fps_idling.fps_max = MAX_FPS
         rp.fps_idling.time_active_after_last_event = 0.5
+        rp.fps_idling.vsync_to_monitor = False
+        # measured on GLFW's null platform: "auto" and "sleep" never idle (25 frames/s) or hang in its event
+        # wait, "early_return" idles at fps_idle; under X11 (Xvfb) "sleep" idled best
+        from app.viewer.platform import choose_platform
+
+        mode = "early_return" if choose_platform() == "null" else "sleep"
+        rp.fps_idling.fps_idling_mode = getattr(hello_imgui.FpsIdlingMode, mode)
         rp.imgui_window_params.default_imgui_window_type = hello_imgui.DefaultImGuiWindowType.no_default_window
         rp.callbacks.post_init = self.post_init
         rp.callbacks.before_exit = self.before_exit

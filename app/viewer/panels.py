@@ -238,10 +238,11 @@ def training_panel(app) -> None:
         if changed:
             session.pause_at(app.pause_at_value if app.pause_at_value > 0 else None)
         imgui.end_disabled()
-        changed, share = imgui.slider_float("training share", session.training_share, 0.05, 1.0)
+        changed, share = imgui.slider_float("training share", app.view.settings.training_share, 0.05, 0.95)
         if changed:
-            session.set_training_share(share)
-        imgui.set_item_tooltip("the share of time the trainer may use; less leaves the window more of the CPU")
+            app.view.settings.training_share = share
+        imgui.set_item_tooltip("while a trainer runs, the view draws at most (1 - this) of the time: more leaves "
+                               "the trainer more of the CPU, less makes the view smoother")
         changed, app.refresh_s = imgui.slider_float("view refresh (s)", app.refresh_s, 0.05, 5.0)
         imgui.set_item_tooltip("how often the view takes the trainer's latest model (each redraw costs it time)")
         s = app.view.settings

@@ -10,8 +10,8 @@ inside the thread (loading a scene or VGG takes seconds, and the window must sta
 end, and saves its outputs. Stop, window close and Ctrl-C save too: a reconstruction writes its checkpoint and PLY,
 a stylization its current model; an exception in the trainer becomes one line in the UI and the session goes on.
 
-The GIL: moderngl holds it while it draws, and a Python trainer needs it between its torch calls. ``training_share``
-(nerfview's "train utilisation") lets the trainer sleep a share of each step so a UI on a slow machine keeps up.
+The session never sleeps the trainer: sharing the CPU with the view is the view's business (it limits how much of
+the time it spends drawing while a trainer runs; see view3d.py).
 """
 
 from __future__ import annotations
@@ -77,7 +77,6 @@ class LiveSession:
         self._stop = threading.Event()
         self._paused = False
         self._pause_at: int | None = None
-        self._share = 1.0
         self._step_times: deque[float] = deque(maxlen=20)
         self.saved: list[Path] = []
         self.history: deque[dict[str, float]] = deque(maxlen=history)  # step metrics, for the curves
@@ -112,14 +111,6 @@ class LiveSession:
     def stop(self) -> None:
         self._stop.set()
         self._commands.put(("wake",))
-
-    def set_training_share(self, share: float) -> None:
-        """Fraction of the time the trainer may use, in (0, 1]; the rest it sleeps, leaving the GIL to the UI."""
-        self._share = min(1.0, max(0.05, float(share)))
-
-    @property
-    def training_share(self) -> float:
-        return self._share
 
     def update_config(self, **changes: Any) -> str | None:
         """Hand config changes to the running trainer (applied at its next step); the refusal as one line, or
@@ -276,12 +267,9 @@ class LiveSession:
             with self._lock:
                 self._status.steps_per_second = 1.0 / mean if mean > 0 else 0.0
                 left = max(0, trainer.total_iters - step)
-                self._status.seconds_left = left * mean / max(self._share, 1e-3)
+                self._status.seconds_left = left * mean
             if one_step or (self._paused and self._status.state != "paused"):
                 self._set(state="paused")
-            if self._share < 1.0:
-                # sleeping lets go of the GIL: the UI thread draws while the trainer rests
-                self._stop.wait(dt * (1.0 - self._share) / self._share)
 
 
 def _one_line(exc: BaseException) -> str:

@@ -14,8 +14,10 @@ from dataclasses import dataclass
 import numpy as np
 
 from app.viewer.camera_control import ViewerCamera, nearest_camera
+from renderer_gl import gl_direct
 
 MODES = ("color", "depth", "alpha", "points", "ellipsoids")
+BURST_S = 0.6  # drawing time the view may spend at once after a quiet spell while a trainer runs
 PHOTO_MODES = ("off", "blend", "side")
 
 
@@ -32,6 +34,7 @@ class RenderSettings:
     photo_alpha: float = 0.5
     motion_scale: float = 0.5
     training_scale: float = 1.0  # resolution of the still view while a trainer runs (it shares the CPU)
+    training_share: float = 0.5  # while a trainer runs, the view draws at most (1 - this) of the time
     settle_s: float = 0.25
 
 
@@ -55,6 +58,9 @@ class View3D:
         self.overlays = None  # renderer_gl Lines, or None
         self.frames_drawn = 0
         self.last_frame_s = 0.0
+        self.flying = False  # a fly or roll key is held
+        self._budget = BURST_S  # seconds of drawing the view may still spend now (a token bucket)
+        self._budget_at = time.perf_counter()
 
     # ------------------------------------------------------------------ models
     def show(self, snap, slot: int = 0) -> bool:
@@ -105,6 +111,7 @@ class View3D:
             if io.mouse_wheel:
                 self.camera.zoom(io.mouse_wheel)
                 self.moved()
+        self.flying = False
         if not io.want_capture_keyboard:
             k = imgui.Key
             axis = lambda pos, neg: float(imgui.is_key_down(pos)) - float(imgui.is_key_down(neg))  # noqa: E731
@@ -116,6 +123,7 @@ class View3D:
             if roll:
                 self.camera.roll(roll * dt)
                 self.moved()
+            self.flying = bool(forward or right or up or roll)
 
     def snap_to(self, camera, cameras) -> None:
         """Put the view at a dataset camera (keeping the orbit centre's distance)."""
@@ -139,16 +147,22 @@ class View3D:
             self.dirty = True
         return self._fbo
 
-    def needs_draw(self) -> bool:
+    def needs_draw(self, training: bool = False) -> bool:
         settled = time.perf_counter() - self._last_move > self.settings.settle_s
-        return self.dirty or (self._full_res_pending and settled)
+        s = self.settings
+        still_scale = s.training_scale if training else 1.0
+        return self.dirty or (self._full_res_pending and settled and still_scale != s.motion_scale)
 
     def draw(self, size: tuple[int, int], split_ready: bool, training: bool = False) -> bool:
         """Render into the offscreen target if needed; returns whether it drew."""
         if size[0] < 1 or size[1] < 1 or self.camera is None:
             return False
         fbo = self._target(size)
-        if not self.needs_draw():
+        if training and not self.may_draw_now():
+            return False
+        if not self.needs_draw(training):
+            if self._full_res_pending and time.perf_counter() - self._last_move > self.settings.settle_s:
+                self._full_res_pending = False  # the moving picture is already at the still scale
             return False
         s = self.settings
         moving = time.perf_counter() - self._last_move <= s.settle_s
@@ -165,11 +179,23 @@ class View3D:
             self.renderer.render(cam, fbo, mode=s.mode, background=s.background, split=split,
                                  max_sh_degree=s.max_sh_degree, scale=scale, photo=photo,
                                  photo_alpha=s.photo_alpha, overlays=self.overlays)
-        self.ctx.finish()
+        gl_direct.finish(self.ctx)
         self.last_frame_s = time.perf_counter() - t0
+        if training:
+            self._budget -= self.last_frame_s
         self.frames_drawn += 1
         self.dirty = False
         return True
+
+    def may_draw_now(self) -> bool:
+        """While a trainer runs the view may draw (1 - share) of the time on average: drawing time accrues at that
+        rate up to a burst of BURST_S, so a move after a quiet spell is drawn at once (latency) while continuous
+        motion settles at the share (the trainer's throughput)."""
+        now = time.perf_counter()
+        share = min(max(self.settings.training_share, 0.05), 0.95)
+        self._budget = min(BURST_S, self._budget + (now - self._budget_at) * (1.0 - share))
+        self._budget_at = now
+        return self._budget > 0.0
 
     def blit(self, screen) -> None:
         """Copy the last picture to the window's framebuffer."""
