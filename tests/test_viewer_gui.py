@@ -194,3 +194,57 @@ Path(os.environ["RESULT"]).write_text(json.dumps(found))
     assert found["steps_at_close"] <= state["step"] < 3000  # saved where it stopped, not at the end
     assert (tmp_path / "out" / "reconstruction" / "point_cloud.ply").exists()
     check_screenshot(tmp_path / "viewer_reconstruct.png")
+
+
+def test_select_box_delete_undo_crop_and_export(demo_scene, tmp_path):
+    scene_dir, _, model = demo_scene
+    found = run_gui(PRELUDE + f"""
+import numpy as np
+app = ViewerApp(Paths(model={str(model)!r}, data={str(scene_dir)!r}, out=str(OUT / "out")))
+
+def test(ctx):
+    ed = app.editor
+    found["n0"] = ed.count
+    means = ed.model.means
+    lo = np.percentile(means, 20, axis=0)
+    hi = np.percentile(means, 70, axis=0)
+    found["box"] = [lo.tolist(), hi.tolist()]
+    ctx.set_ref("Edit")
+    for axis in range(3):  # typed into the panel's box fields, as a user does
+        ctx.item_input_value(f"box min/$${{axis}}", float(lo[axis]))
+        ctx.item_input_value(f"box max/$${{axis}}", float(hi[axis]))
+    found["box_in_panel"] = [list(app.edit_box[0]), list(app.edit_box[1])]
+    ctx.item_click("Select in box")
+    found["selected"] = int(ed.selected.sum())
+    ctx.item_click("Delete")
+    found["after_delete"] = ed.count
+    ctx.item_click("Undo")
+    found["after_undo"] = ed.count
+    found["selected_after_undo"] = int(ed.selected.sum())
+    ctx.item_click("Crop to box")
+    found["after_crop"] = ed.count
+    app.view.dirty = True
+    ctx.yield_(3)
+    testing.capture(ctx, str(OUT / "viewer_edit.png"))
+    ctx.item_click("Export PLY")
+    ctx.yield_(2)
+
+run(app, test)
+found["error"] = app.error
+Path(os.environ["RESULT"]).write_text(json.dumps(found))
+""", tmp_path)
+    from training.model.ply_io import read_ply
+
+    assert found["error"] == ""
+    lo, hi = (np.array(v, dtype=np.float32) for v in found["box_in_panel"])
+    assert np.allclose(lo, found["box"][0], atol=1e-3) and np.allclose(hi, found["box"][1], atol=1e-3)
+    source = read_ply(model).means.numpy()
+    inside = np.all((source >= lo) & (source <= hi), axis=1)
+    assert 0 < inside.sum() < len(source)
+    assert found["selected"] == inside.sum()
+    assert found["after_delete"] == found["n0"] - inside.sum()
+    assert found["after_undo"] == found["n0"] and found["selected_after_undo"] == inside.sum()
+    assert found["after_crop"] == inside.sum()
+    exported = read_ply(tmp_path / "out" / "edited.ply").means.numpy()
+    assert np.array_equal(exported, source[inside])  # exactly the Gaussians inside the box, in their order
+    check_screenshot(tmp_path / "viewer_edit.png")

@@ -62,7 +62,13 @@ class ViewerApp:
         self.view = None  # View3D, made in post_init (needs the GL context)
         self.ctx = None
         self.style_image: np.ndarray | None = None
-        self.static_model: ModelSnapshot | None = None  # an opened PLY, shown when no trainer runs
+        self.editor = None  # selection.Editor over the opened model (shown when no trainer runs)
+        self.source_gaussians = None  # the opened model as read, raw parameters (what edits index into)
+        self._editor_shown = None
+        self.tool = "orbit"  # orbit | rect | brush | lasso: what a left drag in the 3D view does
+        self.select_mode = "set"
+        self.brush_radius = 30.0
+        self._gesture: list[tuple[float, float]] = []
         self.original: ModelSnapshot | None = None  # the model before stylization (split view, right: stylized)
         self.model_info: dict[str, Any] = {}
         self.preset = preset
@@ -112,8 +118,12 @@ class ViewerApp:
         from training.model.splat_io import read_splat
 
         p = Path(path)
+        from app.viewer.selection import Editor
+
         g = read_splat(p) if p.suffix.lower() == ".splat" else read_ply(p)
-        self.static_model = snapshot_of(g, version=-int(time.time() * 1000) % 1_000_000_000)
+        self.source_gaussians = g
+        self.editor = Editor(snapshot_of(g, version=-int(time.time() * 1000) % 1_000_000_000))
+        self._editor_shown = None
         self.paths.model = str(p)
         self._describe(self.static_model)
         if self.view is not None:
@@ -143,6 +153,25 @@ class ViewerApp:
         self.paths.style = str(path)
         self._release_style_textures()
         self.say(f"opened painting {path} ({self.style_image.shape[1]}x{self.style_image.shape[0]})")
+
+    @property
+    def static_model(self) -> ModelSnapshot | None:
+        return None if self.editor is None else self.editor.model
+
+    def edited_gaussians(self, selection_only: bool = False):
+        """The opened model after the edits (raw parameters, as read), or only its selected Gaussians."""
+        import torch
+
+        if self.editor is None:
+            raise ValueError("no model is open")
+        rows = self.editor.index[self.editor.selected] if selection_only else self.editor.index
+        if selection_only and len(rows) == 0:
+            raise ValueError("nothing is selected")
+        return self.source_gaussians.subset(torch.as_tensor(rows, dtype=torch.long))
+
+    def edited(self) -> bool:
+        return self.editor is not None and (len(self.editor.index) != len(self.source_gaussians)
+                                            or bool(self.editor.hidden.any()))
 
     def photo(self, index: int) -> np.ndarray | None:
         """The dataset photo of camera ``index`` at the loader's size (loaded once, on first use)."""
@@ -243,6 +272,13 @@ class ViewerApp:
         model = self.paths.model or None
         if model is None:
             raise ValueError("open a model (PLY) or reconstruct first")
+        if self.edited():
+            from training.model.ply_io import write_ply
+
+            # the stylization starts from what the user sees: the model after the deletes and crops
+            model = self.out_dir() / "edited_model.ply"
+            model.parent.mkdir(parents=True, exist_ok=True)
+            write_ply(model, self.edited_gaussians())
         self.original = self.static_model
         self.error = ""
         self.session.start([stylize_stage(self.paths.data, self.paths.style, self.out_dir() / "stylized",
@@ -308,6 +344,12 @@ class ViewerApp:
                     self._place_camera()
         if self.original is not None and self.view.settings.split:
             self.view.show(self.original, 1)
+        if self.editor is not None and self.session.trainer is None and self._editor_shown != self.editor.version:
+            self.view.show(self.editor.model, 0)
+            self.view.renderer.set_flags(self.editor.flags(), 0)
+            self._describe(self.editor.model)
+            self._editor_shown = self.editor.version
+            self.view.dirty = True
 
     def _current_model(self) -> ModelSnapshot | None:
         trainer = self.session.trainer
@@ -423,7 +465,10 @@ class ViewerApp:
         dt, self._last_frame_time = now - self._last_frame_time, now
         self.guarded("update", self.sync)
         span = _span([c.center for c in self.scene.cameras]) if self.scene.cameras else 1.0
-        self.view.handle_input(imgui, min(dt, 0.1), fly_speed=0.5 * span)
+        from app.viewer.edit_panel import handle_gesture
+
+        handle_gesture(self)
+        self.view.handle_input(imgui, min(dt, 0.1), fly_speed=0.5 * span, left_orbits=self.tool == "orbit")
         if imgui.is_key_pressed(imgui.Key.f1) or (imgui.is_key_pressed(imgui.Key.h)
                                                   and not imgui.get_io().want_capture_keyboard):
             self.show_help = not self.show_help
@@ -434,6 +479,14 @@ class ViewerApp:
                 self.snap_to_nearest()
             if imgui.is_key_pressed(imgui.Key.space):
                 (self.session.resume if self.session.status().state == "paused" else self.session.pause)()
+            ctrl = imgui.get_io().key_ctrl
+            if self.editor is not None:
+                if ctrl and imgui.is_key_pressed(imgui.Key.z):
+                    self.editor.undo()
+                elif ctrl and imgui.is_key_pressed(imgui.Key.y):
+                    self.editor.redo()
+                elif imgui.is_key_pressed(imgui.Key.delete):
+                    self.guarded("delete", self.editor.delete)
         panels.draw_all(self)
         if self.view.needs_draw(self.session.running) or self.view.flying:
             # a camera in motion (a held key sends no new events) or a picture still to draw: next frame now

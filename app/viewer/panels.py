@@ -18,7 +18,8 @@ from training.stylize import defaults as D
 
 KEYS = [("left drag", "orbit"), ("right / middle drag", "pan"), ("wheel", "zoom"), ("W A S D", "fly"),
         ("Q / E", "down / up"), ("Z / C", "roll"), ("N", "snap to the nearest dataset camera"), ("R", "reset view"),
-        ("space", "pause / resume training"), ("H or F1", "this help")]
+        ("space", "pause / resume training"), ("Ctrl+Z / Ctrl+Y", "undo / redo an edit"),
+        ("Delete", "delete the selection"), ("H or F1", "this help")]
 RED = imgui.ImVec4(1.0, 0.4, 0.35, 1.0)
 GREY = imgui.ImVec4(0.6, 0.6, 0.6, 1.0)
 # Settings the stylizer fixes when it starts; the panel greys them during a run and says why.
@@ -26,7 +27,10 @@ RESTART = "fixed while a stylization runs: it shapes the run from its first step
 
 
 def draw_all(app) -> None:
+    from app.viewer.edit_panel import edit_panel
+
     scene_panel(app)
+    edit_panel(app)
     training_panel(app)
     style_panel(app)
     view_order_panel(app)

@@ -93,7 +93,7 @@ class View3D:
         self._full_res_pending = True
         self.dirty = True
 
-    def handle_input(self, imgui, dt: float, fly_speed: float) -> None:
+    def handle_input(self, imgui, dt: float, fly_speed: float, left_orbits: bool = True) -> None:
         """Orbit (left drag), pan (right or middle drag), zoom (wheel), fly (WASD, Q/E), roll (Z/C), when the
         panels do not want the mouse or keyboard."""
         if self.camera is None:
@@ -101,7 +101,7 @@ class View3D:
         io = imgui.get_io()
         if not io.want_capture_mouse:
             dx, dy = io.mouse_delta.x, io.mouse_delta.y
-            if imgui.is_mouse_dragging(imgui.MouseButton_.left) and (dx or dy):
+            if left_orbits and imgui.is_mouse_dragging(imgui.MouseButton_.left) and (dx or dy):
                 self.camera.orbit(dx, dy)
                 self.moved()
             elif (imgui.is_mouse_dragging(imgui.MouseButton_.right)

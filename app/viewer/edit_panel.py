@@ -1,0 +1,172 @@
+"""The Edit panel and the selection gestures in the 3D view (rectangle, brush, lasso), as SuperSplat users know
+them; world-space box and sphere selections and the crop box are typed in the panel.
+
+Edits apply to the model opened in the viewer (a running trainer's model is shown read-only): undo and redo cover
+every selection and edit; ``Export`` writes the edited model, or its selection only.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from imgui_bundle import imgui
+
+from app.viewer import selection as sel
+
+TOOLS = ("orbit", "rect", "brush", "lasso")
+GREY = imgui.ImVec4(0.6, 0.6, 0.6, 1.0)
+
+
+def _pixels(app, x: float, y: float) -> tuple[float, float]:
+    """imgui's (logical) mouse position -> pixels of the view's camera (framebuffer pixels)."""
+    scale = imgui.get_io().display_framebuffer_scale
+    return x * scale.x, y * scale.y
+
+
+def view_camera(app):
+    io = imgui.get_io()
+    w = int(io.display_size.x * io.display_framebuffer_scale.x)
+    h = int(io.display_size.y * io.display_framebuffer_scale.y)
+    return app.view.camera.camera(w, h)
+
+
+def handle_gesture(app) -> None:
+    """With a selection tool chosen, a left drag in the 3D view selects instead of orbiting."""
+    if app.tool == "orbit" or app.editor is None or app.view.camera is None:
+        app._gesture = []
+        return
+    io = imgui.get_io()
+    mouse = imgui.get_mouse_pos()
+    if imgui.is_mouse_clicked(imgui.MouseButton_.left) and not io.want_capture_mouse:
+        app._gesture = [(mouse.x, mouse.y)]
+    elif app._gesture and imgui.is_mouse_down(imgui.MouseButton_.left):
+        if (mouse.x, mouse.y) != app._gesture[-1]:
+            app._gesture.append((mouse.x, mouse.y))
+        draw_gesture(app)
+    elif app._gesture and imgui.is_mouse_released(imgui.MouseButton_.left):
+        points = [_pixels(app, x, y) for x, y in app._gesture]
+        app._gesture = []
+        app.guarded("select", select_by_gesture, app, points)
+
+
+def select_by_gesture(app, points: list[tuple[float, float]]) -> None:
+    cam = view_camera(app)
+    means = app.editor.model.means
+    if app.tool == "rect":
+        (x0, y0), (x1, y1) = points[0], points[-1]
+        picked = sel.in_rect(means, cam, x0, y0, x1, y1)
+    elif app.tool == "brush":
+        scale = imgui.get_io().display_framebuffer_scale.x
+        picked = np.zeros(len(means), bool)
+        for x, y in points:
+            picked |= sel.in_brush(means, cam, x, y, app.brush_radius * scale)
+    else:
+        picked = sel.in_lasso(means, cam, points)
+    app.editor.select(picked, app.select_mode)
+
+
+def draw_gesture(app) -> None:
+    draw = imgui.get_foreground_draw_list()
+    col = imgui.IM_COL32(255, 200, 60, 230)
+    pts = app._gesture
+    if app.tool == "rect":
+        (x0, y0), (x1, y1) = pts[0], pts[-1]
+        draw.add_rect(imgui.ImVec2(min(x0, x1), min(y0, y1)), imgui.ImVec2(max(x0, x1), max(y0, y1)), col, 0.0,
+                      1.5)
+    elif app.tool == "brush":
+        for x, y in pts[-1:]:
+            draw.add_circle(imgui.ImVec2(x, y), app.brush_radius, col, 0, 1.5)
+    else:
+        for (ax, ay), (bx, by) in zip(pts[:-1], pts[1:]):
+            draw.add_line(imgui.ImVec2(ax, ay), imgui.ImVec2(bx, by), col, 1.5)
+
+
+def edit_panel(app) -> None:
+    imgui.set_next_window_pos(imgui.ImVec2(400, 10), imgui.Cond_.first_use_ever)
+    imgui.set_next_window_size(imgui.ImVec2(330, 430), imgui.Cond_.first_use_ever)
+    expanded, _ = imgui.begin("Edit")
+    if expanded:
+        _edit_contents(app)
+    imgui.end()
+
+
+def _edit_contents(app) -> None:
+    ed = app.editor
+    if ed is None:
+        imgui.text_colored(GREY, "open a model to select and edit it")
+        return
+    if app.session.running:
+        imgui.text_colored(GREY, "a trainer is running: edits apply to the opened model")
+    imgui.text(f"{ed.count:,} Gaussians, {int(ed.selected.sum()):,} selected, {int(ed.hidden.sum()):,} hidden")
+    changed, i = imgui.combo("tool", TOOLS.index(app.tool), list(TOOLS))
+    if changed:
+        app.tool = TOOLS[i]
+    imgui.set_item_tooltip("what a left drag in the 3D view does (orbit turns the camera)")
+    if app.tool == "brush":
+        _, app.brush_radius = imgui.slider_float("brush radius", app.brush_radius, 2.0, 200.0)
+    changed, i = imgui.combo("selection mode", sel.MODES.index(app.select_mode), list(sel.MODES))
+    if changed:
+        app.select_mode = sel.MODES[i]
+    for label, action in (("All", ed.select_all), ("None", ed.select_none), ("Invert", ed.invert)):
+        if imgui.button(label):
+            app.guarded("select", action)
+        imgui.same_line()
+    imgui.new_line()
+    imgui.separator_text("Box and sphere (world units)")
+    box = getattr(app, "edit_box", None)
+    if box is None:
+        lo, hi = ed.model.means.min(axis=0), ed.model.means.max(axis=0)
+        box = app.edit_box = [list(map(float, lo)), list(map(float, hi))]
+    changed, box[0] = imgui.input_float3("box min", box[0])
+    changed, box[1] = imgui.input_float3("box max", box[1])
+    if imgui.button("Select in box"):
+        app.guarded("select", lambda: ed.select(sel.in_box(ed.model.means, np.array(box[0]), np.array(box[1])),
+                                                app.select_mode))
+    imgui.same_line()
+    if imgui.button("Crop to box"):
+        app.guarded("crop", ed.crop, box[0], box[1], True)
+    imgui.same_line()
+    if imgui.button("Cut box out"):
+        app.guarded("crop", ed.crop, box[0], box[1], False)
+    sphere = getattr(app, "edit_sphere", None)
+    if sphere is None:
+        center = ed.model.means.mean(axis=0)
+        sphere = app.edit_sphere = [list(map(float, center)), float(np.ptp(ed.model.means, axis=0).max() / 4)]
+    _, sphere[0] = imgui.input_float3("sphere centre", sphere[0])
+    _, sphere[1] = imgui.input_float("sphere radius", sphere[1])
+    if imgui.button("Select in sphere"):
+        app.guarded("select", lambda: ed.select(sel.in_sphere(ed.model.means, sphere[0], sphere[1]),
+                                                app.select_mode))
+    imgui.separator_text("Edits")
+    for label, action in (("Hide", ed.hide), ("Show all", ed.show_all), ("Delete", ed.delete)):
+        if imgui.button(label):
+            app.guarded(label.lower(), action)
+        imgui.same_line()
+    imgui.new_line()
+    imgui.begin_disabled(not ed.undo_stack)
+    if imgui.button("Undo"):
+        ed.undo()
+    imgui.end_disabled()
+    imgui.same_line()
+    imgui.begin_disabled(not ed.redo_stack)
+    if imgui.button("Redo"):
+        ed.redo()
+    imgui.end_disabled()
+    imgui.separator_text("Export the edited model")
+    _, app.export_selection_only = imgui.checkbox("selection only", getattr(app, "export_selection_only", False))
+    if imgui.button("Export PLY"):
+        app.guarded("export", export_edited, app, "ply")
+    imgui.same_line()
+    if imgui.button("Export .splat"):
+        app.guarded("export", export_edited, app, "splat")
+
+
+def export_edited(app, kind: str):
+    from training.model.ply_io import write_ply
+    from training.model.splat_io import write_splat
+
+    g = app.edited_gaussians(selection_only=getattr(app, "export_selection_only", False))
+    out = app.out_dir() / f"edited.{kind}"
+    out.parent.mkdir(parents=True, exist_ok=True)
+    (write_ply if kind == "ply" else write_splat)(out, g)
+    app.say(f"wrote {out} ({len(g):,} Gaussians)")
+    return out

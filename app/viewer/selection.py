@@ -1,0 +1,197 @@
+"""Selections and edits of the model the viewer holds, with undo and redo.
+
+A selection is a boolean mask over the Gaussians, made in screen space (rectangle, brush, lasso: the Gaussians
+whose centres project inside, in front of the camera) or in world space (box, sphere), and combined with the current
+one by a mode: set, add, remove. Edits change what the model is: hide and show (kept, not drawn), delete, crop to a
+box (keep inside or outside). Every edit is a step on the undo stack; undo restores the model exactly.
+
+The model here is a ``ModelSnapshot``-like set of arrays; an edit produces a new one (the arrays it keeps, copied)
+with a new version, so the view re-uploads it like any other model change and a trainer can take the same keep-mask.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field, replace
+
+import numpy as np
+
+MODES = ("set", "add", "remove")
+
+
+def combine(current: np.ndarray, picked: np.ndarray, mode: str) -> np.ndarray:
+    if mode == "set":
+        return picked.copy()
+    if mode == "add":
+        return current | picked
+    if mode == "remove":
+        return current & ~picked
+    raise ValueError(f"unknown selection mode {mode!r}; expected one of {', '.join(MODES)}")
+
+
+def project(means: np.ndarray, camera) -> tuple[np.ndarray, np.ndarray]:
+    """Pixel coordinates (N, 2) of the centres seen by ``camera`` (the project's Camera), and whether each is in
+    front of it."""
+    w2c = np.asarray(camera.world_to_camera, dtype=np.float64)
+    pc = means.astype(np.float64) @ w2c[:3, :3].T + w2c[:3, 3]
+    z = pc[:, 2]
+    front = z > 1e-6
+    zs = np.where(front, z, 1.0)
+    uv = np.stack([camera.fx * pc[:, 0] / zs + camera.cx, camera.fy * pc[:, 1] / zs + camera.cy], axis=1)
+    return uv, front
+
+
+def in_rect(means, camera, x0, y0, x1, y1) -> np.ndarray:
+    uv, front = project(means, camera)
+    lo_x, hi_x = sorted((x0, x1))
+    lo_y, hi_y = sorted((y0, y1))
+    return front & (uv[:, 0] >= lo_x) & (uv[:, 0] <= hi_x) & (uv[:, 1] >= lo_y) & (uv[:, 1] <= hi_y)
+
+
+def in_brush(means, camera, x, y, radius) -> np.ndarray:
+    uv, front = project(means, camera)
+    return front & ((uv[:, 0] - x) ** 2 + (uv[:, 1] - y) ** 2 <= radius ** 2)
+
+
+def in_lasso(means, camera, polygon) -> np.ndarray:
+    """Centres inside the closed polygon (K, 2) of pixel points (even-odd rule)."""
+    poly = np.asarray(polygon, dtype=np.float64).reshape(-1, 2)
+    uv, front = project(means, camera)
+    if len(poly) < 3:
+        return np.zeros(len(means), dtype=bool)
+    x, y = uv[:, 0], uv[:, 1]
+    inside = np.zeros(len(means), dtype=bool)
+    for (ax, ay), (bx, by) in zip(poly, np.roll(poly, -1, axis=0)):
+        crosses = (ay > y) != (by > y)
+        with np.errstate(divide="ignore", invalid="ignore"):
+            x_cross = ax + (y - ay) * (bx - ax) / (by - ay)
+        inside ^= crosses & (x < x_cross)
+    return front & inside
+
+
+def in_box(means, lo, hi) -> np.ndarray:
+    lo, hi = np.minimum(lo, hi), np.maximum(lo, hi)
+    return np.all((means >= lo) & (means <= hi), axis=1)
+
+
+def in_sphere(means, center, radius) -> np.ndarray:
+    return np.sum((means - np.asarray(center)) ** 2, axis=1) <= float(radius) ** 2
+
+
+@dataclass
+class EditState:
+    """What undo restores: the model and which of its Gaussians are selected and hidden."""
+
+    model: object  # ModelSnapshot
+    selected: np.ndarray
+    hidden: np.ndarray
+    index: np.ndarray
+
+
+@dataclass
+class Editor:
+    """Selection and edits over one model; ``model`` is always the current one (a ModelSnapshot)."""
+
+    model: object
+    selected: np.ndarray = None
+    hidden: np.ndarray = None
+    index: np.ndarray = None  # for each current Gaussian, its row in the model the editor started from
+    undo_stack: list[EditState] = field(default_factory=list)
+    redo_stack: list[EditState] = field(default_factory=list)
+    version: int = 0  # bumped by every change the view must show
+
+    def __post_init__(self) -> None:
+        n = len(self.model)
+        self.selected = np.zeros(n, bool) if self.selected is None else self.selected
+        self.hidden = np.zeros(n, bool) if self.hidden is None else self.hidden
+        self.index = np.arange(n) if self.index is None else self.index
+
+    # ------------------------------------------------------------------ selection (undoable too)
+    def select(self, picked: np.ndarray, mode: str = "set") -> None:
+        self._push()
+        self.selected = combine(self.selected, picked & ~self.hidden, mode)
+        self.version += 1
+
+    def select_all(self) -> None:
+        self.select(~self.hidden, "set")
+
+    def select_none(self) -> None:
+        self.select(np.zeros_like(self.selected), "set")
+
+    def invert(self) -> None:
+        self.select(~self.selected & ~self.hidden, "set")
+
+    # ------------------------------------------------------------------ edits
+    def hide(self) -> None:
+        self._push()
+        self.hidden = self.hidden | self.selected
+        self.selected = np.zeros_like(self.selected)
+        self.version += 1
+
+    def show_all(self) -> None:
+        self._push()
+        self.hidden = np.zeros_like(self.hidden)
+        self.version += 1
+
+    def delete(self) -> np.ndarray:
+        """Remove the selected Gaussians; returns the keep-mask over the model before the edit."""
+        return self.keep(~self.selected)
+
+    def crop(self, lo, hi, inside: bool = True) -> np.ndarray:
+        """Keep the Gaussians inside the box (or outside it); returns the keep-mask."""
+        box = in_box(self.model.means, np.asarray(lo, float), np.asarray(hi, float))
+        return self.keep(box if inside else ~box)
+
+    def keep(self, keep: np.ndarray) -> np.ndarray:
+        self._push()
+        self.model = subset(self.model, keep)
+        self.selected = self.selected[keep]
+        self.hidden = self.hidden[keep]
+        self.index = self.index[keep]
+        self.version += 1
+        return keep
+
+    # ------------------------------------------------------------------ history
+    def _state(self) -> EditState:
+        return EditState(self.model, self.selected.copy(), self.hidden.copy(), self.index)
+
+    def _restore(self, state: EditState) -> None:
+        self.model, self.selected, self.hidden, self.index = state.model, state.selected, state.hidden, state.index
+        self.version += 1
+
+    def _push(self) -> None:
+        self.undo_stack.append(self._state())
+        self.redo_stack.clear()
+
+    def undo(self) -> bool:
+        if not self.undo_stack:
+            return False
+        self.redo_stack.append(self._state())
+        self._restore(self.undo_stack.pop())
+        return True
+
+    def redo(self) -> bool:
+        if not self.redo_stack:
+            return False
+        self.undo_stack.append(self._state())
+        self._restore(self.redo_stack.pop())
+        return True
+
+    def flags(self) -> np.ndarray:
+        """uint8 per Gaussian for the renderer: bit 0 selected (tinted), bit 1 hidden."""
+        return (self.selected.astype(np.uint8) | (self.hidden.astype(np.uint8) << 1))
+
+    @property
+    def count(self) -> int:
+        return len(self.model)
+
+
+def subset(model, keep: np.ndarray):
+    """The ModelSnapshot with only the Gaussians where ``keep``, as a new version of the geometry."""
+    def take(a):
+        out = np.ascontiguousarray(a[keep])
+        out.setflags(write=False)
+        return out
+
+    return replace(model, version=model.version + 1_000_000, geometry_version=model.geometry_version + 1_000_000,
+                   means=take(model.means), scales=take(model.scales), quats=take(model.quats),
+                   opacities=take(model.opacities), sh=take(model.sh))
