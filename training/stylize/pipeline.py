@@ -29,9 +29,10 @@ def choose_downscale(data: Path, max_side: int) -> int:
 
 
 def stylize_to_folder(model: Path, data: Path, style: Path, out: Path, config: StylizeConfig,
-                      vgg_weights: str | None = None, listener=None, log=None) -> dict[str, Any]:
+                      vgg_weights: str | None = None, listener=None, log=None, mask=None) -> dict[str, Any]:
     """Run the job and return the report (also written to OUT/report.json). ``listener`` receives the stylizer's
-    events (training/core/messages.py); ``log`` (a str -> None callable) gets one line describing the run."""
+    events (training/core/messages.py); ``log`` (a str -> None callable) gets one line describing the run.
+    ``mask``: (N,) bool, stylize only those Gaussians (Stylizer's ``mask``)."""
     from training.core.atomic_write import atomic_open
     from training.scene.image_io import write_image
     from training.model.ply_io import read_ply, write_ply
@@ -47,7 +48,7 @@ def stylize_to_folder(model: Path, data: Path, style: Path, out: Path, config: S
     scene = load_scene(data, downscale=choose_downscale(data, config.render_max_side))
     t_loaded = time.perf_counter()
 
-    stylizer = Stylizer(gaussians, scene, style_image, config, vgg_weights=vgg_weights, model_name=model)
+    stylizer = Stylizer(gaussians, scene, style_image, config, vgg_weights=vgg_weights, model_name=model, mask=mask)
     t0 = time.perf_counter()
     distance_start = stylizer.style_distance(sh=stylizer.original_sh)
     distance_pre = stylizer.style_distance() if stylizer.pre_transform is not None else distance_start

@@ -37,6 +37,8 @@ from training.core.messages import (EventSource, ModelSnapshot, check_cancel, ch
 from training.model.gaussians import Gaussians
 from training.raster.rasterize import resolve_device
 from training.scene.scene import Camera, Scene, over_background
+from training.stylize.region import (as_mask, blend_content, coverage_from_render, covered_pixels, indicator_sh,
+                                     keep_unselected, masked_step)
 from training.stylize.style_image import check_style_array, halve, style_for_render
 from training.stylize import defaults as D
 from training.stylize.defaults import (FORWARD_ITERS_PER_VIEW, FORWARD_MIN_TOTAL, LOSSES, ORBIT_ITERS_PER_VIEW,
@@ -194,11 +196,13 @@ class Stylizer:
     ``vgg``: a ``VGGFeatures`` to share; loaded (with ``config``'s weights source) when None.
     The caller's Gaussians are not modified: ``self.gaussians`` is a new model sharing the geometry tensors
     (detached) with new colour tensors.
+    ``mask``: (N,) bool, the Gaussians to stylize (None: all); the others' colours stay bit-identical through the
+    steps and both colour transfers (training/stylize/region.py); ``set_mask`` changes it between steps.
     """
 
     def __init__(self, gaussians: Gaussians, scene: Scene, style_image: np.ndarray, config: StylizeConfig | None = None,
                  vgg: torch.nn.Module | None = None, vgg_weights: str | None = None,
-                 model_name: str | Path | None = None, check_match: bool = True):
+                 model_name: str | Path | None = None, check_match: bool = True, mask=None):
         self.config = config or StylizeConfig()
         self.config.validate()
         self.device = resolve_device(self.config.device)
@@ -222,6 +226,9 @@ class Stylizer:
                     for k in ("means", "log_scales", "quats", "opacity_logits")}
         colour = {k: getattr(gaussians, k).detach().to(self.device).clone() for k in ("sh0", "shN")}
         self.gaussians = Gaussians(**geometry, **colour, sh_degree=gaussians.sh_degree)
+        self._mask = as_mask(mask, len(self.gaussians), model_name)
+        if self._mask is not None and not bool(self._mask.any()):
+            raise InputError(model_name, "the selection mask selects no Gaussians: nothing to stylize")
         # Activated geometry, computed once: it never changes and needs no gradient.
         self._scales = self.gaussians.scales.detach()
         self._opacities = self.gaussians.opacities.detach()
@@ -247,11 +254,17 @@ class Stylizer:
         self.post_transform: ColorTransform | None = None
         if self.config.color_transfer:
             style_px = self.style_image.reshape(-1, 3)
-            self.pre_transform = fit_color_transfer(self.content_images, style_px)
-            self.content_images = [apply_to_image(img, self.pre_transform) for img in self.content_images]
-            self.gaussians = apply_to_gaussians(self.gaussians, self.pre_transform)
+            cover = None if self._mask is None else self._coverage()
+            fit_px = self.content_images if cover is None else covered_pixels(self.content_images, cover)
+            self.pre_transform = fit_color_transfer(fit_px, style_px)
+            moved = [apply_to_image(img, self.pre_transform) for img in self.content_images]
+            self.content_images = moved if cover is None else [
+                blend_content(img, new, c) for img, new, c in zip(self.content_images, moved, cover)]
+            self.gaussians = keep_unselected(apply_to_gaussians(self.gaussians, self.pre_transform), self.gaussians,
+                                             self._mask)
         # The pre-stylization model: the content of virtual views.
         self._initial_sh = self.gaussians.sh.detach().clone()
+        self._frozen = self.gaussians.detached()  # the colours unselected Gaussians are held to
         self.times.add("pre_color_transfer", time.perf_counter() - t0)
         self.original_sh = torch.cat([colour["sh0"], colour["shN"]], dim=1)  # the input model's colours
 
@@ -331,14 +344,15 @@ class Stylizer:
             backend=self.config.backend)
         return image, alpha
 
-    def render_views(self, cameras: list[Camera] | None = None, cancel=None) -> list[tuple[np.ndarray, np.ndarray]]:
-        """(image (H, W, 3), alpha (H, W, 1)) numpy renders of ``cameras`` (default: every scene view); ``cancel()``
-        is asked before each view (Cancelled)."""
+    def render_views(self, cameras: list[Camera] | None = None, cancel=None,
+                     sh: torch.Tensor | None = None) -> list[tuple[np.ndarray, np.ndarray]]:
+        """(image (H, W, 3), alpha (H, W, 1)) numpy renders of ``cameras`` (default: every scene view) with the
+        current colours (or ``sh``); ``cancel()`` is asked before each view (Cancelled)."""
         out = []
         with torch.no_grad():
             for cam in cameras if cameras is not None else self.cameras:
                 check_cancel(cancel)
-                img, alpha = self.render(cam)
+                img, alpha = self.render(cam, sh=sh)
                 out.append((img.clamp(0, 1).float().cpu().numpy(), alpha.float().cpu().numpy()))
         return out
 
@@ -469,7 +483,7 @@ class Stylizer:
 
         t = time.perf_counter()
         with self._model_lock:
-            self._optimizer.step()
+            masked_step(self._optimizer, self.gaussians, self._mask, self._frozen)
             self._version += 1
         sync()
         timings["optimizer"] = time.perf_counter() - t
@@ -509,6 +523,31 @@ class Stylizer:
             self.events.emit("finished", self.iteration)
         return result
 
+    @property
+    def mask(self) -> np.ndarray | None:
+        """(N,) bool copy of the selection being stylized; None when every Gaussian is."""
+        m = self._mask
+        return None if m is None else m.numpy().copy()
+
+    def set_mask(self, mask) -> None:
+        """Stylize only ``mask``'s Gaussians from the next step on (None: all); any thread. Gaussians leaving the
+        selection keep the colours they have now; the snapshot version moves on. ValueError for a wrong shape."""
+        try:
+            new = as_mask(mask, len(self.gaussians))
+        except InputError as exc:
+            raise ValueError(exc.problem) from None
+        with self._model_lock:
+            self._mask = new
+            self._frozen = self.gaussians.detached()
+            self._version += 1
+
+    def _coverage(self, cancel=None) -> list[np.ndarray]:
+        """Per view, (H, W) share of each pixel's colour that comes from the selection."""
+        g = self.gaussians
+        ind = indicator_sh(self._mask, g.sh_degree, self.device, g.means.dtype)
+        return [coverage_from_render(img, a, self.config.background)
+                for img, a in self.render_views(sh=ind, cancel=cancel)]
+
     def run(self, cancel=None) -> None:
         """Step until the schedule is done (or ``cancel()`` turns true between steps: raises Cancelled)."""
         while not self.done:
@@ -544,13 +583,19 @@ class Stylizer:
             self.finished = True
             return None
         renders = self.render_views(cancel=cancel)
-        pixels = [foreground_pixels(img, a) for img, a in renders]
+        if self._mask is None:
+            pixels = [foreground_pixels(img, a) for img, a in renders]
+        else:  # fitted where the selection shows: the map is applied to the selection alone
+            cover = self._coverage(cancel)
+            pixels = covered_pixels([img for img, _ in renders], cover, [a for _, a in renders])
         pixels = [p for p in pixels if len(p)]
         if not pixels:
             return None
         self.post_transform = fit_color_transfer(pixels, self.style_image.reshape(-1, 3))
         with self._model_lock:
-            self.gaussians = apply_to_gaussians(self.gaussians.detached(), self.post_transform)
+            current = self.gaussians.detached()
+            self.gaussians = keep_unselected(apply_to_gaussians(current, self.post_transform), current, self._mask)
+            self._frozen = self.gaussians.detached()
             self._optimizer = None  # the colour tensors were replaced: a later step() starts a fresh optimiser
             self._version += 1
         self.finished = True
