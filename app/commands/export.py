@@ -1,8 +1,11 @@
-"""``splatstyler export IN -o OUT``: convert a Gaussian model between file formats.
+"""``splatstyler export IN -o OUT``: write a Gaussian model (or a selection of it) as PLY, compressed PLY or .splat.
 
-IN is a 3DGS PLY (or a .splat file); OUT's extension picks the format: ``.splat`` (web viewers; colour from the
-SH DC term only) or ``.ply`` (standard 3DGS layout; ``--sh-degree`` lowers the SH degree kept, e.g. 0 for colour
-without view dependence; the file keeps all 45 f_rest, zeroed, as every PLY we write does for other tools).
+IN is a 3DGS PLY (or a .splat file). OUT's name picks the format (``--format`` overrides it): ``*.compressed.ply``
+(PlayCanvas's chunked compressed PLY, which SuperSplat and the PlayCanvas engine load: 16 bytes per Gaussian plus
+3 per SH coefficient kept), ``*.ply`` (standard 3DGS layout; all 45 f_rest, zero-padded, unless ``--compact-sh``),
+``*.splat`` (web viewers; colour from the SH DC term only). ``--sh-bands B`` keeps SH bands 0..B. A selection
+(``--mask FILE``, ``--box``, ``--sphere``, with ``--invert``) writes only those Gaussians. The size of the file is
+printed before it is written; ``--dry-run`` prints it and writes nothing.
 """
 
 from __future__ import annotations
@@ -16,65 +19,105 @@ OUTPUT_FORMATS = (".splat", ".ply")
 def register(sub: argparse._SubParsersAction) -> None:
     parser = sub.add_parser(
         "export",
-        help="convert a Gaussian PLY to .splat, or re-save it as PLY with fewer SH degrees",
-        description="Convert a 3DGS PLY (or .splat) to .splat or .ply; the output extension picks the format.",
+        help="write a model (or a selection) as PLY, compressed PLY or .splat, with a choice of SH bands",
+        description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter,
     )
     parser.add_argument("input", type=Path, metavar="IN", help="3DGS .ply (or .splat) file")
     parser.add_argument("-o", "--output", type=Path, required=True, metavar="OUT",
-                        help="output file, .splat or .ply (written atomically)")
-    parser.add_argument("--sh-degree", type=int, choices=range(4), default=None, metavar="D",
-                        help="PLY output: keep SH up to degree D (0..3, at most the input's); default: all")
+                        help="output file: .ply, .compressed.ply or .splat (written atomically)")
+    parser.add_argument("--format", choices=("ply", "compressed-ply", "splat"), default=None,
+                        help="output format (default: from OUT's name)")
+    parser.add_argument("--sh-bands", "--sh-degree", dest="sh_degree", type=int, choices=range(4), default=None,
+                        metavar="B", help="keep SH bands up to B (0..3, at most the input's); default: all the "
+                                          "input and the format hold")
+    parser.add_argument("--compact-sh", action="store_true",
+                        help="PLY: write only the kept bands' f_rest instead of all 45 zero-padded (smaller; some "
+                             "older viewers expect 45)")
+    sel = parser.add_mutually_exclusive_group()
+    sel.add_argument("--mask", type=Path, default=None, metavar="FILE",
+                     help="export only these Gaussians: .npy bool mask or indices, or .txt indices")
+    sel.add_argument("--box", default=None, metavar="X0,Y0,Z0,X1,Y1,Z1",
+                     help="export only the Gaussians whose centres lie in this box (--box=-1,... for a leading "
+                          "minus)")
+    sel.add_argument("--sphere", default=None, metavar="CX,CY,CZ,R",
+                     help="export only the Gaussians whose centres lie in this sphere")
+    parser.add_argument("--invert", action="store_true", help="with a selection: export the other Gaussians")
+    parser.add_argument("--dry-run", action="store_true", help="print what would be written and its size; write "
+                                                               "nothing")
     parser.set_defaults(func=run)
 
 
-def lower_sh_degree(gaussians, degree: int):
-    """The same model keeping SH coefficients up to ``degree`` (<= gaussians.sh_degree)."""
-    from training.model.gaussians import Gaussians, num_sh_coeffs
-
-    if degree > gaussians.sh_degree:
-        raise ValueError(f"cannot raise SH degree {gaussians.sh_degree} to {degree}")
-    params = gaussians.parameters()
-    params["shN"] = params["shN"][:, : num_sh_coeffs(degree) - 1].contiguous()
-    return Gaussians(**params, sh_degree=degree)
-
-
-def run(args: argparse.Namespace) -> int:
+def read_model(path: Path):
+    """A .ply or .splat model; InputError for anything else."""
     from app.commands.info import detect_kind
     from training.core.errors import InputError
 
-    out_fmt = args.output.suffix.lower()
-    if out_fmt not in OUTPUT_FORMATS:
-        raise InputError(args.output, f"unknown output format '{args.output.suffix}'; use .splat or .ply")
-    if args.output.is_dir():
-        raise InputError(args.output, "is a folder; give an output file name ending in .splat or .ply")
-    kind = detect_kind(args.input)
+    kind = detect_kind(path)
     if kind == "ply":
         from training.model.ply_io import read_ply
 
-        g = read_ply(args.input)
-    elif kind == "splat":
+        return read_ply(path)
+    if kind == "splat":
         from training.model.splat_io import read_splat
 
-        g = read_splat(args.input)
-    else:
-        raise InputError(args.input, "is not a Gaussian model file (.ply or .splat)")
+        return read_splat(path)
+    raise InputError(path, "is not a Gaussian model file (.ply or .splat)")
 
+
+def selection_mask(args: argparse.Namespace, means):
+    """(N,) bool from --mask/--box/--sphere and --invert, or None when none is given."""
+    from training.core.errors import InputError
+    from training.model.selection import box_mask, load_mask, parse_floats, sphere_mask
+
+    if args.mask is None and args.box is None and args.sphere is None:
+        if args.invert:
+            raise InputError(None, "--invert needs --mask, --box or --sphere")
+        return None
+    if args.mask is not None:
+        mask = load_mask(args.mask, len(means))
+    elif args.box is not None:
+        b = parse_floats(args.box, 6, "--box")
+        mask = box_mask(means, b[:3], b[3:])
+    else:
+        c = parse_floats(args.sphere, 4, "--sphere")
+        if c[3] < 0:
+            raise InputError(None, f"--sphere radius must be >= 0, got {c[3]}")
+        mask = sphere_mask(means, c[:3], c[3])
+    return ~mask if args.invert else mask
+
+
+def run(args: argparse.Namespace) -> int:
+    from training.core.errors import InputError
+    from training.model.export import FORMAT_NAMES, export_size, format_for_path, human_size, write_export
+
+    fmt = args.format or format_for_path(args.output)
+    if fmt is None:
+        raise InputError(args.output, f"unknown output format '{args.output.suffix}'; use .ply, .compressed.ply or "
+                                      ".splat (or --format)")
+    if args.output.is_dir():
+        raise InputError(args.output, "is a folder; give an output file name ending in .ply, .compressed.ply or "
+                                      ".splat")
+    g = read_model(args.input)
     if args.sh_degree is not None:
-        if out_fmt == ".splat":
-            raise InputError(None, "--sh-degree applies to .ply output only (.splat holds no SH beyond the colour)")
+        if fmt == "splat" and args.sh_degree > 0:
+            raise InputError(None, "--sh-bands above 0 needs PLY output (.splat holds no SH beyond the colour)")
         if args.sh_degree > g.sh_degree:
-            raise InputError(args.input, f"holds SH degree {g.sh_degree}; --sh-degree {args.sh_degree} cannot "
+            raise InputError(args.input, f"holds SH degree {g.sh_degree}; --sh-bands {args.sh_degree} cannot "
                                          "add degrees")
-        g = lower_sh_degree(g, args.sh_degree)
-
-    if out_fmt == ".splat":
-        from training.model.splat_io import write_splat
-
-        write_splat(args.output, g)
-    else:
-        from training.model.ply_io import write_ply
-
-        write_ply(args.output, g)
-    print(f"wrote {args.output} ({len(g)} Gaussians, "
-          + ("SH degree 0 colour only" if out_fmt == ".splat" else f"SH degree {g.sh_degree}") + ")")
+    bands = min(g.sh_degree, 0 if fmt == "splat" else 3) if args.sh_degree is None else args.sh_degree
+    mask = selection_mask(args, g.means.numpy())
+    count = len(g) if mask is None else int(mask.sum())
+    if count == 0:
+        raise InputError(None, f"the selection holds none of the model's {len(g)} Gaussians: nothing to export")
+    size = export_size(fmt, bands, count, pad_sh=not args.compact_sh)
+    what = f"{count} of {len(g)} Gaussians" if mask is not None else f"{count} Gaussians"
+    line = (f"{args.output}: {FORMAT_NAMES[fmt]}, {what}, SH bands {bands}, {human_size(size)} ({size} bytes, "
+            f"{size / count:.1f} per Gaussian)")
+    if args.dry_run:
+        print(f"would write {line}")
+        return 0
+    print(f"writing {line}", flush=True)
+    write_export(args.output, g, fmt, bands, mask, pad_sh=not args.compact_sh)
+    print(f"wrote {args.output} ({count} Gaussians, "
+          + ("SH degree 0 colour only" if fmt == "splat" else f"SH degree {bands}") + ")")
     return 0

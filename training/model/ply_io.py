@@ -56,8 +56,31 @@ _MAX_HEADER_BYTES = 1 << 20
 
 
 # ----------------------------------------------------------------------------------------------------- writing
-def write_ply(path: str | Path, gaussians: Gaussians) -> None:
+def ply_attributes(degree: int, pad_sh: bool = True) -> list[str]:
+    """The vertex properties written for a model of SH ``degree``: all 45 f_rest when ``pad_sh``, else only the
+    degree's own 3 * ((d+1)^2 - 1), as graphdeco writes a lower-degree model and SuperSplat a lowered export."""
+    if pad_sh:
+        return list(STANDARD_ATTRIBUTES)
+    keep = {f"f_rest_{i}" for i in range(3 * (num_sh_coeffs(degree) - 1))}
+    return [a for a in STANDARD_ATTRIBUTES if not a.startswith("f_rest_") or a in keep]
+
+
+def _ply_header(n: int, degree: int, pad_sh: bool) -> bytes:
+    header = ["ply", "format binary_little_endian 1.0", f"comment {_DEGREE_COMMENT} {degree}", f"element vertex {n}"]
+    header += [f"property float {name}" for name in ply_attributes(degree, pad_sh)]
+    return ("\n".join(header + ["end_header"]) + "\n").encode("ascii")
+
+
+def ply_file_size(num_gaussians: int, degree: int, pad_sh: bool = True) -> int:
+    """Bytes ``write_ply`` writes for ``num_gaussians`` of SH ``degree``."""
+    n = int(num_gaussians)
+    return len(_ply_header(n, degree, pad_sh)) + 4 * n * len(ply_attributes(degree, pad_sh))
+
+
+def write_ply(path: str | Path, gaussians: Gaussians, pad_sh: bool = True) -> None:
     """Write ``gaussians`` (any device, sh_degree 0..3) to ``path`` in the standard 3DGS layout, atomically.
+    ``pad_sh=False`` writes only the model's own f_rest instead of all 45 (smaller; the module's docstring says why
+    45 is the default).
 
     Raises ValueError if the model holds non-finite values (a file other tools would choke on is worse than none).
     """
@@ -71,16 +94,18 @@ def write_ply(path: str | Path, gaussians: Gaussians) -> None:
         if bad:
             raise ValueError(f"cannot write a PLY: {bad} Gaussians have non-finite {name}")
 
-    rest = np.zeros((n, 3, num_sh_coeffs(MAX_SH_DEGREE) - 1), dtype=np.float32)  # (N, channel, coefficient)
+    width = num_sh_coeffs(MAX_SH_DEGREE if pad_sh else d) - 1  # coefficients per channel in the file
+    rest = np.zeros((n, 3, width), dtype=np.float32)  # (N, channel, coefficient)
     rest[:, :, : num_sh_coeffs(d) - 1] = arrays["shN"].transpose(0, 2, 1)
 
-    data = np.zeros(n, dtype=np.dtype([(name, "<f4") for name in STANDARD_ATTRIBUTES]))
+    names = ply_attributes(d, pad_sh)
+    data = np.zeros(n, dtype=np.dtype([(name, "<f4") for name in names]))
     for i, axis in enumerate("xyz"):
         data[axis] = arrays["means"][:, i]
     for c in range(3):
         data[f"f_dc_{c}"] = arrays["sh0"][:, 0, c]
-    rest_flat = rest.reshape(n, NUM_F_REST)
-    for i in range(NUM_F_REST):
+    rest_flat = rest.reshape(n, 3 * width)
+    for i in range(3 * width):
         data[f"f_rest_{i}"] = rest_flat[:, i]
     data["opacity"] = arrays["opacity_logits"]
     for i in range(3):
@@ -88,11 +113,8 @@ def write_ply(path: str | Path, gaussians: Gaussians) -> None:
     for i in range(4):
         data[f"rot_{i}"] = arrays["quats"][:, i]
 
-    header = ["ply", "format binary_little_endian 1.0", f"comment {_DEGREE_COMMENT} {d}", f"element vertex {n}"]
-    header += [f"property float {name}" for name in STANDARD_ATTRIBUTES]
-    header += ["end_header"]
     with atomic_open(path, "wb") as f:
-        f.write(("\n".join(header) + "\n").encode("ascii"))
+        f.write(_ply_header(n, d, pad_sh))
         f.write(data.tobytes())
 
 
