@@ -19,7 +19,7 @@ from training.model.splat_io import read_splat
 def test_demo_runs_end_to_end(tmp_path):
     out = tmp_path / "demo"
     proc = subprocess.run(
-        [sys.executable, "-m", "app", "demo", "-o", str(out), "--recon-iters", "300", "--iters-per-view", "1"],
+        [sys.executable, "-m", "app", "demo", "--headless", "-o", str(out), "--recon-iters", "300", "--iters-per-view", "1"],
         capture_output=True, text=True, timeout=1200,
     )
     assert proc.returncode == 0, proc.stderr[-3000:]
@@ -49,7 +49,7 @@ def test_demo_bad_style_is_one_line(tmp_path):
     bad = tmp_path / "painting.png"
     bad.write_bytes(b"not an image")
     proc = subprocess.run(
-        [sys.executable, "-m", "app", "demo", "-o", str(tmp_path / "o"), "--style", str(bad), "--recon-iters", "2"],
+        [sys.executable, "-m", "app", "demo", "--headless", "-o", str(tmp_path / "o"), "--style", str(bad), "--recon-iters", "2"],
         capture_output=True, text=True, timeout=1200,
     )
     assert proc.returncode == 2
