@@ -20,7 +20,9 @@ COMMANDS = [
     "reconstruct",
     "stylize",
     "export",
+    "crop",
     "render",
+    "video",
     "bench",
 ]
 

@@ -1,0 +1,351 @@
+"""Camera paths for videos: keyframes (pose + intrinsics), a smooth path through them, ready-made paths (an orbit, the
+dataset's trajectory), and JSON files. numpy only (no torch, no GL): the viewer's keyframe panel and
+``splatstyler video`` share it.
+
+Conventions: a keyframe's ``world_to_camera`` is a 4x4 in OpenCV axes (x right, y down, z forward), as everywhere in
+this project; intrinsics are pixels for the keyframe's own ``width`` x ``height`` and are rescaled when frames are
+asked for at another size. Between keyframes the camera centre follows a Catmull-Rom spline (centripetal, so it
+neither overshoots nor loops at unevenly spaced keys), the rotation is slerped, and the intrinsics (relative to the
+image size) are interpolated linearly. Each keyframe-to-keyframe segment takes the same time. A ``loop`` path
+returns from the last keyframe to the first (orbits) and its last frame stops one step short of the first.
+
+JSON (``save``/``load``; a bad file is an InputError naming it)::
+
+    {"version": 1, "duration": 8.0, "fps": 30, "loop": false,
+     "keyframes": [{"world_to_camera": [[...], [...], [...], [0, 0, 0, 1]], "fx": 500, "fy": 500, "cx": 320,
+                    "cy": 180, "width": 640, "height": 360}, ...]}
+"""
+
+from __future__ import annotations
+
+import json
+import math
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from training.core.atomic_write import atomic_open
+from training.core.errors import InputError
+
+FORMAT_VERSION = 1
+MAX_FPS = 240.0
+MAX_FRAMES = 100_000
+ORTHONORMAL_TOLERANCE = 1e-4
+
+
+@dataclass(frozen=True)
+class Keyframe:
+    """A camera: pose and pinhole intrinsics. Camera-like for renderer_gl (``renderer_gl.view(keyframe)``)."""
+
+    world_to_camera: np.ndarray
+    fx: float
+    fy: float
+    cx: float
+    cy: float
+    width: int
+    height: int
+
+    @property
+    def rotation(self) -> np.ndarray:
+        """(3, 3) camera-to-world rotation."""
+        return self.world_to_camera[:3, :3].T
+
+    @property
+    def center(self) -> np.ndarray:
+        r, t = self.world_to_camera[:3, :3], self.world_to_camera[:3, 3]
+        return -r.T @ t
+
+    def resized(self, width: int, height: int) -> "Keyframe":
+        sx, sy = width / self.width, height / self.height
+        return Keyframe(self.world_to_camera, self.fx * sx, self.fy * sy, self.cx * sx, self.cy * sy, width, height)
+
+    def to_dict(self) -> dict:
+        return {"world_to_camera": np.asarray(self.world_to_camera, dtype=float).tolist(), "fx": float(self.fx),
+                "fy": float(self.fy), "cx": float(self.cx), "cy": float(self.cy), "width": int(self.width),
+                "height": int(self.height)}
+
+
+def keyframe_from(camera) -> Keyframe:
+    """A keyframe from any camera-like object (a dataset Camera, a renderer_gl View, the viewer's current view)."""
+    return Keyframe(np.array(camera.world_to_camera, dtype=np.float64), float(camera.fx), float(camera.fy),
+                    float(camera.cx), float(camera.cy), int(camera.width), int(camera.height))
+
+
+def pose(center, rotation_c2w) -> np.ndarray:
+    """(4, 4) world-to-camera from a camera centre and a camera-to-world rotation."""
+    m = np.eye(4)
+    r = np.asarray(rotation_c2w, dtype=np.float64)
+    m[:3, :3] = r.T
+    m[:3, 3] = -r.T @ np.asarray(center, dtype=np.float64)
+    return m
+
+
+def look_at(eye, target, up) -> np.ndarray:
+    """(4, 4) world-to-camera (OpenCV axes) at ``eye`` looking at ``target``, ``up`` up in the image."""
+    eye, target, up = (np.asarray(v, dtype=np.float64) for v in (eye, target, up))
+    z = target - eye
+    z /= np.linalg.norm(z)
+    x = np.cross(z, -up)  # image y points down, so the world's up is -y
+    if np.linalg.norm(x) < 1e-9:
+        x = np.cross(z, [1.0, 0.0, 0.0] if abs(z[0]) < 0.9 else [0.0, 1.0, 0.0])
+    x /= np.linalg.norm(x)
+    y = np.cross(z, x)
+    return pose(eye, np.stack([x, y, z], axis=1))
+
+
+# ------------------------------------------------------------------------------------------- quaternions
+def matrix_to_quat(r: np.ndarray) -> np.ndarray:
+    """(w, x, y, z) unit quaternion of a rotation matrix (Shepperd's method: stable for every angle)."""
+    m = np.asarray(r, dtype=np.float64)
+    tr = np.trace(m)
+    if tr > 0:
+        s = 2.0 * math.sqrt(1.0 + tr)
+        q = [0.25 * s, (m[2, 1] - m[1, 2]) / s, (m[0, 2] - m[2, 0]) / s, (m[1, 0] - m[0, 1]) / s]
+    else:
+        i = int(np.argmax(np.diag(m)))
+        j, k = (i + 1) % 3, (i + 2) % 3
+        s = 2.0 * math.sqrt(max(1.0 + m[i, i] - m[j, j] - m[k, k], 1e-300))
+        q = [0.0] * 4
+        q[0] = (m[k, j] - m[j, k]) / s
+        q[1 + i] = 0.25 * s
+        q[1 + j] = (m[j, i] + m[i, j]) / s
+        q[1 + k] = (m[k, i] + m[i, k]) / s
+    q = np.asarray(q)
+    return q / np.linalg.norm(q)
+
+
+def quat_to_matrix(q: np.ndarray) -> np.ndarray:
+    w, x, y, z = np.asarray(q, dtype=np.float64) / np.linalg.norm(q)
+    return np.array([[1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)],
+                     [2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)],
+                     [2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)]])
+
+
+def slerp(q0: np.ndarray, q1: np.ndarray, t: float) -> np.ndarray:
+    """Constant-speed rotation from q0 to q1 along the shorter arc."""
+    d = float(q0 @ q1)
+    if d < 0:
+        q1, d = -q1, -d
+    if d > 0.9995:  # nearly equal: the formula divides by sin of a tiny angle; a normalised lerp is exact enough
+        q = q0 + t * (q1 - q0)
+        return q / np.linalg.norm(q)
+    theta = math.acos(min(1.0, d))
+    return (math.sin((1 - t) * theta) * q0 + math.sin(t * theta) * q1) / math.sin(theta)
+
+
+def catmull_rom(p0, p1, p2, p3, t: float, alpha: float = 0.5) -> np.ndarray:
+    """The point at ``t`` in [0, 1] between p1 and p2 of a Catmull-Rom spline (alpha 0.5: centripetal)."""
+    pts = [np.asarray(p, dtype=np.float64) for p in (p0, p1, p2, p3)]
+    knots = [0.0]
+    for a, b in zip(pts, pts[1:]):
+        knots.append(knots[-1] + max(float(np.linalg.norm(b - a)) ** alpha, 1e-9))
+    t0, t1, t2, t3 = knots
+    u = t1 + t * (t2 - t1)
+
+    def mix(a, b, ta, tb):
+        return (tb - u) / (tb - ta) * a + (u - ta) / (tb - ta) * b
+
+    a1, a2, a3 = mix(pts[0], pts[1], t0, t1), mix(pts[1], pts[2], t1, t2), mix(pts[2], pts[3], t2, t3)
+    b1, b2 = mix(a1, a2, t0, t2), mix(a2, a3, t1, t3)
+    return mix(b1, b2, t1, t2)
+
+
+# ------------------------------------------------------------------------------------------- the path
+def _relative_intrinsics(k: Keyframe) -> np.ndarray:
+    """fx, fy, cx, cy over the image size: what stays the same when a view is rendered at another size."""
+    return np.array([k.fx / k.width, k.fy / k.height, k.cx / k.width, k.cy / k.height])
+
+
+@dataclass
+class CameraPath:
+    keyframes: list[Keyframe] = field(default_factory=list)
+    duration: float = 8.0  # seconds
+    fps: float = 30.0
+    loop: bool = False
+
+    def validate(self, name=None) -> None:
+        if not self.keyframes:
+            raise InputError(name, "a camera path needs at least one keyframe")
+        if not (math.isfinite(self.duration) and self.duration > 0):
+            raise InputError(name, f"duration must be a positive number of seconds, got {self.duration}")
+        if not (math.isfinite(self.fps) and 0 < self.fps <= MAX_FPS):
+            raise InputError(name, f"fps must be in (0, {MAX_FPS:g}], got {self.fps}")
+        if not 1 <= self.frame_count <= MAX_FRAMES:
+            raise InputError(name, f"{self.duration:g} s at {self.fps:g} fps is {self.frame_count} frames; "
+                                   f"1..{MAX_FRAMES} are allowed")
+
+    @property
+    def frame_count(self) -> int:
+        return max(1, int(round(self.duration * self.fps)))
+
+    def _segments(self) -> int:
+        n = len(self.keyframes)
+        return n if self.loop and n > 1 else max(n - 1, 0)
+
+    def camera_at(self, t: float, width: int | None = None, height: int | None = None) -> Keyframe:
+        """The camera at ``t`` seconds (clamped to the path), at ``width`` x ``height`` (default: the first
+        keyframe's size)."""
+        keys = self.keyframes
+        n = len(keys)
+        w = int(width or keys[0].width)
+        h = int(height or keys[0].height)
+        segments = self._segments()
+        if segments == 0:
+            return keys[0].resized(w, h)
+        s = min(max(t / self.duration, 0.0), 1.0) * segments
+        i = min(int(s), segments - 1)
+        u = s - i
+
+        def key(j):
+            return keys[j % n] if self.loop else keys[min(max(j, 0), n - 1)]
+
+        c = [key(j).center for j in (i - 1, i, i + 1, i + 2)]
+        if not self.loop:  # mirror the ends so the first and last segments have a neighbour to bend toward
+            if i == 0:
+                c[0] = 2 * c[1] - c[2]
+            if i + 2 > n - 1:
+                c[3] = 2 * c[2] - c[1]
+        centre = catmull_rom(*c, u)
+        a, b = key(i), key(i + 1)
+        rot = quat_to_matrix(slerp(matrix_to_quat(a.rotation), matrix_to_quat(b.rotation), u))
+        rel = (1 - u) * _relative_intrinsics(a) + u * _relative_intrinsics(b)
+        return Keyframe(pose(centre, rot), rel[0] * w, rel[1] * h, rel[2] * w, rel[3] * h, w, h)
+
+    def frame_times(self) -> np.ndarray:
+        """Seconds of each frame: the path's start to its end, or, for a loop, up to one step before the start."""
+        count = self.frame_count
+        if self.loop or count == 1:
+            return np.arange(count) * (self.duration / count)
+        return np.linspace(0.0, self.duration, count)
+
+    def cameras(self, width: int | None = None, height: int | None = None) -> list[Keyframe]:
+        """Every frame's camera."""
+        return [self.camera_at(float(t), width, height) for t in self.frame_times()]
+
+    # ------------------------------------------------------------------ files
+    def to_dict(self) -> dict:
+        return {"version": FORMAT_VERSION, "duration": float(self.duration), "fps": float(self.fps),
+                "loop": bool(self.loop), "keyframes": [k.to_dict() for k in self.keyframes]}
+
+    def save(self, path: str | Path) -> None:
+        with atomic_open(path, "w") as f:
+            json.dump(self.to_dict(), f, indent=1)
+            f.write("\n")
+
+    @classmethod
+    def from_dict(cls, data, name=None) -> "CameraPath":
+        if not isinstance(data, dict):
+            raise InputError(name, "a camera path file holds a JSON object")
+        if data.get("version", FORMAT_VERSION) != FORMAT_VERSION:
+            raise InputError(name, f"camera path version {data.get('version')!r}; this splatstyler reads "
+                                   f"version {FORMAT_VERSION}")
+        keys = data.get("keyframes")
+        if not isinstance(keys, list) or not keys:
+            raise InputError(name, "'keyframes' must be a non-empty list")
+        path = cls([_keyframe(k, i, name) for i, k in enumerate(keys)],
+                   duration=_number(data, "duration", 8.0, name), fps=_number(data, "fps", 30.0, name),
+                   loop=bool(data.get("loop", False)))
+        path.validate(name)
+        return path
+
+    @classmethod
+    def load(cls, path: str | Path) -> "CameraPath":
+        path = Path(path)
+        if not path.is_file():
+            raise InputError(path, "file does not exist" if not path.exists() else "is not a file")
+        try:
+            data = json.loads(path.read_text())
+        except (ValueError, UnicodeDecodeError) as exc:
+            raise InputError(path, f"not valid JSON ({str(exc).splitlines()[0]})") from None
+        return cls.from_dict(data, path)
+
+
+def _number(data: dict, key: str, default, name) -> float:
+    value = data.get(key, default)
+    if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value):
+        raise InputError(name, f"'{key}' must be a finite number, got {value!r}")
+    return float(value)
+
+
+def _keyframe(k, i: int, name) -> Keyframe:
+    where = f"keyframe {i}"
+    if not isinstance(k, dict):
+        raise InputError(name, f"{where} is not an object")
+    try:
+        m = np.array(k["world_to_camera"], dtype=np.float64)
+    except KeyError:
+        raise InputError(name, f"{where} has no 'world_to_camera'") from None
+    except (TypeError, ValueError):
+        raise InputError(name, f"{where}: 'world_to_camera' is not a 4x4 matrix of numbers") from None
+    if m.shape != (4, 4) or not np.isfinite(m).all():
+        raise InputError(name, f"{where}: 'world_to_camera' must be a finite 4x4 matrix, got shape {m.shape}")
+    r = m[:3, :3]
+    if (np.abs(r @ r.T - np.eye(3)).max() > ORTHONORMAL_TOLERANCE or abs(np.linalg.det(r) - 1) > ORTHONORMAL_TOLERANCE
+            or np.abs(m[3] - [0, 0, 0, 1]).max() > 0):
+        raise InputError(name, f"{where}: 'world_to_camera' is not a rigid transform (rotation and translation)")
+    values = {key: _number(k, key, None, name) if key in k else None for key in ("fx", "fy", "cx", "cy")}
+    missing = [key for key in ("fx", "fy", "cx", "cy", "width", "height") if key not in k]
+    if missing:
+        raise InputError(name, f"{where} lacks {', '.join(missing)}")
+    w, h = k["width"], k["height"]
+    if not all(isinstance(v, int) and not isinstance(v, bool) and 1 <= v <= 16384 for v in (w, h)):
+        raise InputError(name, f"{where}: width and height must be whole numbers 1..16384, got {w!r}x{h!r}")
+    if values["fx"] <= 0 or values["fy"] <= 0:
+        raise InputError(name, f"{where}: fx and fy must be positive")
+    return Keyframe(m, values["fx"], values["fy"], values["cx"], values["cy"], w, h)
+
+
+# ------------------------------------------------------------------------------------------- ready-made paths
+def orbit_path(center, radius: float, up, width: int = 640, height: int = 360, fov_deg: float = 50.0,
+               elevation_deg: float = 20.0, start=None, seconds: float = 8.0, fps: float = 30.0,
+               keyframes: int = 12) -> CameraPath:
+    """A loop around ``center`` at ``radius``, raised ``elevation_deg`` above the plane perpendicular to ``up``,
+    always looking at the centre; ``start`` (a world direction from the centre) places the first keyframe."""
+    center, up = np.asarray(center, dtype=np.float64), np.asarray(up, dtype=np.float64)
+    up = up / np.linalg.norm(up)
+    a = np.asarray(start, dtype=np.float64) if start is not None else np.array([1.0, 0.0, 0.0])
+    a = a - up * (a @ up)
+    if np.linalg.norm(a) < 1e-9:
+        a = np.cross(up, [0.0, 0.0, 1.0]) if abs(up[2]) < 0.9 else np.cross(up, [1.0, 0.0, 0.0])
+    a /= np.linalg.norm(a)
+    b = np.cross(up, a)
+    el = math.radians(elevation_deg)
+    f = 0.5 * width / math.tan(math.radians(fov_deg) / 2)
+    keys = []
+    for k in range(keyframes):
+        th = 2 * math.pi * k / keyframes
+        eye = center + radius * (math.cos(el) * (math.cos(th) * a + math.sin(th) * b) + math.sin(el) * up)
+        keys.append(Keyframe(look_at(eye, center, up), f, f, width / 2, height / 2, width, height))
+    return CameraPath(keys, duration=seconds, fps=fps, loop=True)
+
+
+def orbit_around(means, opacities=None, cameras=None, **kwargs) -> CameraPath:
+    """An orbit fitted to a model: centred on its opaque Gaussians' median; with the dataset's ``cameras``, at
+    their median distance, around their mean up direction, starting at the first camera; without, at 2.5 times
+    the model's 90th-percentile spread, y-down up (COLMAP and 3DGS scenes are mostly y-down)."""
+    means = np.asarray(means, dtype=np.float64)
+    keep = np.ones(len(means), bool)
+    if opacities is not None and (np.asarray(opacities) > 0.5).sum() >= 10:
+        keep = np.asarray(opacities) > 0.5
+    target = np.median(means[keep], axis=0)
+    if cameras:
+        centres = np.stack([keyframe_from(c).center for c in cameras])
+        kwargs.setdefault("up", -np.mean([np.asarray(c.world_to_camera)[1, :3] for c in cameras], axis=0))
+        kwargs.setdefault("start", centres[0] - target)
+        radius = float(np.median(np.linalg.norm(centres - target, axis=1)))
+    else:
+        kwargs.setdefault("up", np.array([0.0, -1.0, 0.0]))
+        radius = 2.5 * max(float(np.percentile(np.linalg.norm(means[keep] - target, axis=1), 90)), 1e-3)
+    return orbit_path(target, radius, **kwargs)
+
+
+def dataset_path(cameras, seconds: float | None = None, fps: float = 30.0, seconds_per_camera: float = 0.25,
+                 width: int | None = None, height: int | None = None) -> CameraPath:
+    """The dataset's cameras in their order as keyframes (optionally resized), ``seconds_per_camera`` each unless
+    ``seconds`` is given."""
+    keys = [keyframe_from(c) for c in cameras]
+    if width or height:
+        keys = [k.resized(int(width or k.width), int(height or k.height)) for k in keys]
+    duration = seconds if seconds is not None else max(1, len(keys) - 1) * seconds_per_camera
+    return CameraPath(keys, duration=duration, fps=fps, loop=False)
