@@ -116,9 +116,9 @@ def test(ctx):
     trainer = app.session.trainer
     found["tau_before"] = trainer.config.tau
     ctx.set_ref("Style")
+    changed_at = app.session.status().step     # steps up to this one finished before the change
     ctx.item_input_value("tau", 0.05)          # the slider, through the UI
     found["tau_in_panel"] = app.stylize_config.tau
-    changed_at = app.session.status().step
     new_tau = lambda h: abs(h.get("tau", 0.0) - 0.05) < 1e-6  # the slider holds float32
     wait(ctx, lambda: any(new_tau(h) for h in list(app.session.history)), 60,
          "a step that used the new tau")
@@ -154,7 +154,7 @@ found["saved"] = [str(p) for p in app.session.saved]
 found["error"] = app.error
 Path(os.environ["RESULT"]).write_text(json.dumps(found))
 """, tmp_path)
-    assert found["error"] == ""
+    assert found["error"] == "", found["error"]
     assert found["tau_before"] == 0.5 and found["tau_in_panel"] == pytest.approx(0.05, abs=1e-6)
     assert found["tau_after"] == pytest.approx(0.05, abs=1e-6) and found["loss_tau_after"] == found["tau_after"]
     assert found["first_step_with_new_tau"] > found["changed_at"]
@@ -235,7 +235,7 @@ Path(os.environ["RESULT"]).write_text(json.dumps(found))
 """, tmp_path)
     from training.model.ply_io import read_ply
 
-    assert found["error"] == ""
+    assert found["error"] == "", found["error"]
     lo, hi = (np.array(v, dtype=np.float32) for v in found["box_in_panel"])
     assert np.allclose(lo, found["box"][0], atol=1e-3) and np.allclose(hi, found["box"][1], atol=1e-3)
     source = read_ply(model).means.numpy()

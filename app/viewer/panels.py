@@ -213,6 +213,12 @@ def training_panel(app) -> None:
         changed, i = imgui.combo("preset", presets.index(app.preset), list(presets))
         if changed:
             app.preset = presets[i]
+        changed, iters = imgui.input_int("iterations (0: preset's)", app.recon_iters or 0, 100, 1000)
+        if changed:
+            app.recon_iters = iters if iters > 0 else None
+        changed, down = imgui.input_int("downscale (0: preset's)", app.downscale or 0)
+        if changed:
+            app.downscale = down if down > 0 else None
         if imgui.button("Reconstruct"):
             app.guarded("reconstruct", app.start_reconstruction)
         imgui.same_line()
@@ -337,6 +343,12 @@ def style_panel(app) -> None:
             app.set_stylize(iters_per_view=per_view or None)
         imgui.separator_text("Fixed at the start")
         imgui.begin_disabled(live)
+        presets = list(D.PRESETS)
+        changed, i = imgui.combo("stylize preset", presets.index(cfg.preset), presets)
+        if changed:
+            app.set_stylize(preset=presets[i])
+        imgui.set_item_tooltip(f"paper: the paper's schedule at up to {D.PAPER_MAX_SIDE} px; quick: "
+                               f"{D.QUICK_MAX_SIDE} px renders and {D.QUICK_ITER_FRACTION:g} of the iterations")
         orders = list(D.VIEW_ORDERS)
         changed, i = imgui.combo("view order", orders.index(cfg.view_order), orders)
         if changed:
