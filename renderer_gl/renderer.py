@@ -181,25 +181,26 @@ class SplatRenderer:
             self._accum_fbo = self.ctx.framebuffer(color_attachments=[self._accum])
         return self._accum_fbo
 
-    def _vao(self, slot: int, kind: str) -> moderngl.VertexArray:
+    def _vao(self, slot: int, kind: str, index: moderngl.Buffer | None = None) -> moderngl.VertexArray:
         model = self._model(slot)
-        key = (slot, kind)
+        index = model.index_buffer if index is None else index
+        key = (slot, kind, index is model.index_buffer)
         cached = self._vaos.get(key)
-        if cached is not None and cached[0] is model.index_buffer:
+        if cached is not None and cached[0] is index:
             return cached[1]
         if cached is not None:
             cached[1].release()
         if kind == "splat" and self.quads == "instanced":
             vao = self.ctx.vertex_array(self._splat_prog, [(self._corners, "2f", "a_corner"),
-                                                           (model.index_buffer, "u/i", "a_index")])
+                                                           (index, "u/i", "a_index")])
         elif kind == "splat":
-            vao = self.ctx.vertex_array(self._splat_prog, [(model.index_buffer, "u", "a_index")])
+            vao = self.ctx.vertex_array(self._splat_prog, [(index, "u", "a_index")])
         else:
-            vao = self.ctx.vertex_array(self._point_prog, [(model.index_buffer, "u", "a_index")])
-        self._vaos[key] = (model.index_buffer, vao)
+            vao = self.ctx.vertex_array(self._point_prog, [(index, "u", "a_index")])
+        self._vaos[key] = (index, vao)
         return vao
 
-    def _draw_slot(self, slot: int, v: View, mode: str, max_sh_degree: int, params: dict) -> int:
+    def _draw_slot(self, slot: int, v: View, mode: str, max_sh_degree: int, params: dict, lod: float = 1.0) -> int:
         model = self._model(slot)
         if model.n == 0:
             return 0
@@ -222,17 +223,21 @@ class SplatRenderer:
         else:
             _set(prog, "u_mode", _SPLAT_MODE[mode])
             _set(prog, "u_outline_sigma", params["outline_sigma"])
+            index, count = model.lod_buffer(lod) if lod < 1.0 else (None, model.n)
             if self.quads == "instanced":
-                gl_direct.draw(self._vao(slot, "splat"), moderngl.TRIANGLE_STRIP, 4, instances=model.n)
+                gl_direct.draw(self._vao(slot, "splat", index), moderngl.TRIANGLE_STRIP, 4, instances=count)
             else:
-                gl_direct.draw(self._vao(slot, "splat"), moderngl.POINTS, model.n)
+                gl_direct.draw(self._vao(slot, "splat", index), moderngl.POINTS, count)
+            return count
         return model.n
 
     def splat_pass(self, camera, mode: str = "color", *, slot: int = 0, split: float | None = None,
                    max_sh_degree: int = 3, scale: float = 1.0, near: float = C.NEAR_PLANE,
                    far: float = C.FAR_PLANE, eps2d: float = C.EPS2D, tint=(1.0, 0.35, 0.1, 0.6),
-                   point_size: float = 2.0, outline_sigma: float = 2.0) -> FrameInfo:
-        """Composite into the accumulation target only (``render`` and ``render_arrays`` call this)."""
+                   point_size: float = 2.0, outline_sigma: float = 2.0, lod: float = 1.0) -> FrameInfo:
+        """Composite into the accumulation target only (``render`` and ``render_arrays`` call this). ``lod`` < 1
+        draws only that fraction of the Gaussians, the most important (opacity x footprint), in depth order: a
+        preview while the camera moves, where software GL pays per splat."""
         if mode not in MODES:
             raise ValueError(f"unknown render mode {mode!r}; expected one of {', '.join(MODES)}")
         v = view(camera)
@@ -265,7 +270,7 @@ class SplatRenderer:
                 info.sort_s += t_sort
                 info.upload_s += t_up
                 ctx.scissor = scissor
-                info.instances += self._draw_slot(s, v, mode, max_sh_degree, params)
+                info.instances += self._draw_slot(s, v, mode, max_sh_degree, params, lod)
         finally:
             ctx.scissor = None
             ctx.disable(moderngl.BLEND)

@@ -86,7 +86,7 @@ class GPUSplats:
         self.width = min(MAX_WIDTH, max_size)
         self.max_rows = max_size
         self.version = 0
-        self._geom = self._sh = self._flags = self._index = None
+        self._geom = self._sh = self._flags = self._index = self._lod_index = None
         self.upload(arrays)
 
     def _texture(self, old, rows: int, components: int, dtype: str, data: bytes):
@@ -106,6 +106,10 @@ class GPUSplats:
         n = a.means.shape[0]
         self.n = n
         self.means = a.means  # kept for depth sorting
+        # what a splat contributes to a picture, roughly: its opacity times its footprint (the LOD keeps the largest)
+        self.importance = a.opacities * np.max(a.scales, axis=1) ** 2
+        self.order = None
+        self._lod_key = None
         geom = np.zeros((n, GEOM_TEXELS, 4), dtype=np.float32)
         geom[:, 0, :3] = a.means
         geom[:, 0, 3] = a.opacities
@@ -152,6 +156,26 @@ class GPUSplats:
     def write_order(self, order: np.ndarray, forward: np.ndarray) -> None:
         self._index.write(np.ascontiguousarray(order, dtype=np.uint32).tobytes())
         self.order_forward = np.array(forward, dtype=np.float64)
+        self.order = order
+        self._lod_key = None
+
+    def lod_buffer(self, fraction: float) -> tuple[moderngl.Buffer, int]:
+        """An index buffer of the ``fraction`` most important Gaussians in the current back-to-front order, and
+        its length (the moving camera's preview: software GL's cost is per splat)."""
+        key = (id(self.order), round(float(fraction), 3))
+        if self._lod_key != key:
+            k = max(1, int(round(self.n * fraction)))
+            threshold = np.partition(self.importance, self.n - k)[self.n - k] if k < self.n else -np.inf
+            order = self.order if self.order is not None else np.arange(self.n, dtype=np.uint32)
+            subset = np.ascontiguousarray(order[self.importance[order] >= threshold], dtype=np.uint32)
+            if self._lod_index is None or self._lod_index.size != max(self.n, 1) * 4:
+                if self._lod_index is not None:
+                    self._lod_index.release()
+                self._lod_index = self.ctx.buffer(reserve=max(self.n, 1) * 4)
+            self._lod_index.write(subset.tobytes())
+            self._lod_count = len(subset)
+            self._lod_key = key
+        return self._lod_index, self._lod_count
 
     @property
     def index_buffer(self) -> moderngl.Buffer:
@@ -168,6 +192,6 @@ class GPUSplats:
             program["u_sh_stride"].value = self.sh_stride
 
     def release(self) -> None:
-        for obj in (self._geom, self._sh, self._flags, self._index):
+        for obj in (self._geom, self._sh, self._flags, self._index, self._lod_index):
             if obj is not None:
                 obj.release()

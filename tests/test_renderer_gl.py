@@ -279,6 +279,28 @@ def test_lower_resolution_pass_resembles_the_full_one(ctx, renderer):
     off.release()
 
 
+def test_moving_preview_draws_the_most_important_fraction_in_depth_order(renderer):
+    """lod=f draws the f most important Gaussians (opacity x footprint) and nothing else: the picture equals a
+    full render of just that subset."""
+    rng = np.random.default_rng(11)
+    cam, _, _ = camera()
+    n = 400
+    means = (rng.uniform(-1, 1, (n, 3)) * [1.3, 1.0, 0.8]).astype(np.float32)
+    scales = np.exp(rng.normal(-2.8, 0.5, (n, 3))).astype(np.float32)
+    quats = rng.normal(size=(n, 4)).astype(np.float32)
+    opac = rng.uniform(0.05, 0.95, n).astype(np.float32)
+    sh = (rng.normal(size=(n, 4, 3)) * 0.3).astype(np.float32)
+    renderer.set_splats(means, scales, quats, opac, sh, 1)
+    info = renderer.splat_pass(cam, lod=0.25)
+    preview = renderer._read_accum()
+    assert info.instances == 100
+    keep = np.argsort(-(opac * scales.max(axis=1) ** 2))[:100]
+    renderer.set_splats(means[keep], scales[keep], quats[keep], opac[keep], sh[keep], 1)
+    subset = renderer.render_arrays(cam, ("rgb", "alpha"))
+    assert np.allclose(preview[..., 3], subset["alpha"], atol=1e-5)
+    assert np.allclose(preview[..., :3], subset["rgb"], atol=1e-5)
+
+
 def test_sort_is_redone_only_when_the_view_turns(ctx):
     r = SplatRenderer(ctx, sort_tolerance_deg=1.0)
     rng = np.random.default_rng(4)

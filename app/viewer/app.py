@@ -415,6 +415,7 @@ class ViewerApp:
         if self.software_gl:
             # drawing on the CPU competes with the trainer for the same cores: a coarser live view by default
             self.view.settings.training_scale = 0.5
+            self.view.settings.motion_lod = 0.35  # software GL pays per splat: a lighter preview while moving
         for what, path, fn in (("model", self.paths.model, self.open_model), ("data", self.paths.data, self.open_data),
                                ("painting", self.paths.style, self.open_style)):
             if path:

@@ -258,6 +258,8 @@ def training_panel(app) -> None:
         s = app.view.settings
         changed, s.training_scale = imgui.slider_float("live view resolution", s.training_scale, 0.25, 1.0)
         app.view.dirty |= changed
+        changed, s.motion_lod = imgui.slider_float("detail while moving", s.motion_lod, 0.05, 1.0)
+        imgui.set_item_tooltip("the share of the Gaussians (the most opaque and largest) drawn while the camera moves")
 
         imgui.separator_text("Status")
         line = f"{status.stage or '-'}: {status.state}"

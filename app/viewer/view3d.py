@@ -33,6 +33,7 @@ class RenderSettings:
     photo: str = "off"
     photo_alpha: float = 0.5
     motion_scale: float = 0.5
+    motion_lod: float = 1.0  # the fraction of the Gaussians (the most important) drawn while the camera moves
     training_scale: float = 1.0  # resolution of the still view while a trainer runs (it shares the CPU)
     training_share: float = 0.5  # while a trainer runs, the view draws at most (1 - this) of the time
     settle_s: float = 0.25
@@ -151,7 +152,8 @@ class View3D:
         settled = time.perf_counter() - self._last_move > self.settings.settle_s
         s = self.settings
         still_scale = s.training_scale if training else 1.0
-        return self.dirty or (self._full_res_pending and settled and still_scale != s.motion_scale)
+        return self.dirty or (self._full_res_pending and settled
+                              and (still_scale != s.motion_scale or s.motion_lod < 1.0))
 
     def draw(self, size: tuple[int, int], split_ready: bool, training: bool = False) -> bool:
         """Render into the offscreen target if needed; returns whether it drew."""
@@ -167,6 +169,7 @@ class View3D:
         s = self.settings
         moving = time.perf_counter() - self._last_move <= s.settle_s
         scale = s.motion_scale if moving else (s.training_scale if training else 1.0)
+        lod = s.motion_lod if moving else 1.0
         if not moving:
             self._full_res_pending = False
         t0 = time.perf_counter()
@@ -178,7 +181,7 @@ class View3D:
             photo = None if s.photo == "off" else s.photo
             self.renderer.render(cam, fbo, mode=s.mode, background=s.background, split=split,
                                  max_sh_degree=s.max_sh_degree, scale=scale, photo=photo,
-                                 photo_alpha=s.photo_alpha, overlays=self.overlays)
+                                 photo_alpha=s.photo_alpha, overlays=self.overlays, lod=lod)
         gl_direct.finish(self.ctx)
         self.last_frame_s = time.perf_counter() - t0
         if training:
