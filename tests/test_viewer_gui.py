@@ -65,6 +65,7 @@ def check_screenshot(path: Path) -> None:
 
 PRELUDE = """
 import json, os, time
+import numpy as np
 from pathlib import Path
 from imgui_bundle.immapp import testing
 from app.viewer.app import Paths, ViewerApp
@@ -131,6 +132,13 @@ def test(ctx):
     found["drawn_order"] = list(app.drawn_order)
     found["trainer_order"] = [item.source_index for item in trainer.trajectory if not item.is_virtual]
     found["capacity_shape"] = list(trainer.capacity_map().shape)
+    ctx.set_ref("Edit")
+    ctx.item_click("Select in sphere")
+    ctx.set_ref("Style")
+    ctx.combo_click("stylize/only the selection")
+    ctx.yield_(2)
+    found["selected"] = int(app.editor.selected.sum())
+    found["mask_is_selection"] = bool(np.array_equal(trainer.mask, app.editor.selected))
     ctx.set_ref("Training")
     ctx.item_click("Pause")
     wait(ctx, lambda: app.session.status().state == "paused", 30, "the pause")
@@ -160,6 +168,7 @@ Path(os.environ["RESULT"]).write_text(json.dumps(found))
     assert found["first_step_with_new_tau"] > found["changed_at"]
     assert found["drawn_order"] == found["trainer_order"] and len(found["trainer_order"]) == 32
     assert len(found["capacity_shape"]) == 2 and min(found["capacity_shape"]) > 1
+    assert 0 < found["selected"] < 4000 and found["mask_is_selection"]  # the running stylizer took the region
     assert found["steps_while_paused"] == 0
     assert found["after_single_step"] == 1 and found["state_after_single_step"] == "paused"
     check_screenshot(tmp_path / "viewer_stylize.png")
@@ -226,7 +235,7 @@ def test(ctx):
     app.view.dirty = True
     ctx.yield_(3)
     testing.capture(ctx, str(OUT / "viewer_edit.png"))
-    ctx.item_click("Export PLY")
+    ctx.item_click("Export")
     ctx.yield_(2)
 
 run(app, test)
@@ -245,6 +254,37 @@ Path(os.environ["RESULT"]).write_text(json.dumps(found))
     assert found["after_delete"] == found["n0"] - inside.sum()
     assert found["after_undo"] == found["n0"] and found["selected_after_undo"] == inside.sum()
     assert found["after_crop"] == inside.sum()
-    exported = read_ply(tmp_path / "out" / "edited.ply").means.numpy()
+    exported = read_ply(tmp_path / "out" / "export.ply").means.numpy()
     assert np.array_equal(exported, source[inside])  # exactly the Gaussians inside the box, in their order
     check_screenshot(tmp_path / "viewer_edit.png")
+
+
+def test_dataset_trajectory_renders_to_a_video(demo_scene, tmp_path):
+    scene_dir, _, model = demo_scene
+    found = run_gui(PRELUDE + f"""
+app = ViewerApp(Paths(model={str(model)!r}, data={str(scene_dir)!r}, out=str(OUT / "out")))
+
+def test(ctx):
+    ctx.set_ref("Camera path")
+    ctx.item_click("Dataset trajectory")
+    found["keyframes"] = len(app.path_keys)
+    ctx.item_input_value("seconds", 1.0)
+    ctx.item_input_value("fps", 12)
+    ctx.item_input_value("size/$$0", 96)
+    ctx.item_input_value("size/$$1", 64)
+    ctx.item_input_value("video file", str(OUT / "path.mp4"))
+    ctx.item_click("Render video")
+    wait(ctx, lambda: app.video_job is None, 120, "the video")
+    found["messages"] = app.messages[-2:]
+
+run(app, test)
+found["error"] = app.error
+Path(os.environ["RESULT"]).write_text(json.dumps(found))
+""", tmp_path)
+    import imageio
+
+    assert found["error"] == "", found["error"]
+    assert found["keyframes"] == 32
+    frames = list(imageio.get_reader(tmp_path / "path.mp4"))
+    assert len(frames) == 12 and frames[0].shape == (64, 96, 3)
+    assert float(np.std(frames[0])) > 2.0  # the scene, not a blank frame

@@ -69,6 +69,14 @@ class ViewerApp:
         self.select_mode = "set"
         self.brush_radius = 30.0
         self._gesture: list[tuple[float, float]] = []
+        self.style_region = "all"  # all | selection | unselected: which Gaussians a stylization may change
+        out = Path(self.paths.out)
+        self.export_settings = {"format": "ply", "sh_bands": 3, "selection_only": False, "compact_sh": False,
+                                "path": str(out / "export.ply")}
+        self.path_keys: list = []  # app.camera_path.Keyframe
+        self.path_settings = {"seconds": 8.0, "fps": 30, "loop": False, "file": str(out / "camera_path.json"),
+                              "size": [640, 360], "video": str(out / "path.mp4"), "split": False}
+        self.video_job = None
         self.original: ModelSnapshot | None = None  # the model before stylization (split view, right: stylized)
         self.model_info: dict[str, Any] = {}
         self.preset = preset
@@ -282,7 +290,24 @@ class ViewerApp:
         self.original = self.static_model
         self.error = ""
         self.session.start([stylize_stage(self.paths.data, self.paths.style, self.out_dir() / "stylized",
-                                          config=self._stylize_config_copy(), model=model)])
+                                          config=self._stylize_config_copy(), model=model,
+                                          mask=self.region_mask())])
+
+    def region_mask(self) -> np.ndarray | None:
+        """The Gaussians a stylization may change, over the edited model (None: all)."""
+        if self.style_region == "all" or self.editor is None:
+            return None
+        return self.editor.selected.copy() if self.style_region == "selection" else ~self.editor.selected
+
+    def set_style_region(self, region: str) -> None:
+        """Which Gaussians the stylization changes; a running stylizer takes it at its next step."""
+        self.style_region = region
+        trainer = self.session.trainer
+        if self._stage == "stylize" and trainer is not None and hasattr(trainer, "set_mask"):
+            mask = self.region_mask()
+            if mask is not None and len(mask) != len(trainer.gaussians):
+                raise ValueError("the selection belongs to another model than the one being stylized")
+            trainer.set_mask(mask)
 
     def _stylize_config_copy(self):
         from dataclasses import replace
@@ -373,6 +398,11 @@ class ViewerApp:
                 order = [item[0] for item in self.trajectory() if not item[2]]
                 if len(order) > 1:
                     parts.append(polyline(np.array([cams[i].center for i in order]), (0.2, 0.9, 1.0, 0.9)))
+        from app.viewer.path_panel import path_line
+
+        line = path_line(self)
+        if line is not None:
+            parts.append(polyline(line, (1.0, 0.3, 0.9, 0.9)))  # the video's camera path, magenta
         self.view.overlays = Lines.join(parts) if parts else None
         self.view.dirty = True
 

@@ -151,22 +151,7 @@ def _edit_contents(app) -> None:
     if imgui.button("Redo"):
         ed.redo()
     imgui.end_disabled()
-    imgui.separator_text("Export the edited model")
-    _, app.export_selection_only = imgui.checkbox("selection only", getattr(app, "export_selection_only", False))
-    if imgui.button("Export PLY"):
-        app.guarded("export", export_edited, app, "ply")
-    imgui.same_line()
-    if imgui.button("Export .splat"):
-        app.guarded("export", export_edited, app, "splat")
+    imgui.separator_text("Export")
+    from app.viewer.export_panel import export_section
 
-
-def export_edited(app, kind: str):
-    from training.model.ply_io import write_ply
-    from training.model.splat_io import write_splat
-
-    g = app.edited_gaussians(selection_only=getattr(app, "export_selection_only", False))
-    out = app.out_dir() / f"edited.{kind}"
-    out.parent.mkdir(parents=True, exist_ok=True)
-    (write_ply if kind == "ply" else write_splat)(out, g)
-    app.say(f"wrote {out} ({len(g):,} Gaussians)")
-    return out
+    export_section(app)

@@ -29,8 +29,11 @@ RESTART = "fixed while a stylization runs: it shapes the run from its first step
 def draw_all(app) -> None:
     from app.viewer.edit_panel import edit_panel
 
+    from app.viewer.path_panel import path_panel
+
     scene_panel(app)
     edit_panel(app)
+    path_panel(app)
     training_panel(app)
     style_panel(app)
     view_order_panel(app)
@@ -140,39 +143,13 @@ def scene_panel(app) -> None:
                 app.view.dirty |= changed
         if imgui.button("Reset view"):
             app.reset_camera()
-        imgui.separator_text("Export")
-        if imgui.button("Save PLY"):
-            app.guarded("export", export_model, app, "ply")
-        imgui.same_line()
-        if imgui.button("Save .splat"):
-            app.guarded("export", export_model, app, "splat")
-        imgui.same_line()
+        imgui.separator_text("Pictures")
         if imgui.button("Screenshot"):
             app.guarded("screenshot", screenshot, app)
         imgui.same_line()
         if imgui.button("Depth EXR"):
             app.guarded("depth", depth_exr, app)
     imgui.end()
-
-
-def export_model(app, kind: str) -> None:
-    """Write the model on screen (the running trainer's, else the opened one) into the output folder."""
-    from training.model.ply_io import write_ply
-    from training.model.splat_io import write_splat
-
-    trainer = app.session.trainer
-    if trainer is not None:
-        g = trainer.stylized_gaussians() if hasattr(trainer, "stylized_gaussians") else trainer.export_gaussians()
-    elif app.paths.model:
-        from training.model.ply_io import read_ply
-
-        g = read_ply(app.paths.model)
-    else:
-        raise ValueError("no model to export")
-    out = app.out_dir() / ("export.ply" if kind == "ply" else "export.splat")
-    out.parent.mkdir(parents=True, exist_ok=True)
-    (write_ply if kind == "ply" else write_splat)(out, g)
-    app.say(f"wrote {out}")
 
 
 def screenshot(app) -> Path:
@@ -315,6 +292,12 @@ def style_panel(app) -> None:
         painting(app)
         cfg = app.stylize_config
         live = app.session.running and app.session.status().stage == "stylize"
+        regions = ("all", "selection", "unselected")
+        changed, i = imgui.combo("stylize", regions.index(app.style_region), ["every Gaussian", "only the selection",
+                                                                             "all but the selection"])
+        if changed:
+            app.guarded("region", app.set_style_region, regions[i])
+        imgui.set_item_tooltip("the others keep their colours exactly (select in the Edit panel)")
         losses = list(D.LOSSES)
         changed, i = imgui.combo("loss", losses.index(cfg.loss), losses)
         if changed:

@@ -40,8 +40,9 @@ def reconstruct_stage(data: str | Path, out: str | Path, preset: str = "quick", 
 
 
 def stylize_stage(data: str | Path, style: str | Path, out: str | Path, config=None, model: str | Path | None = None,
-                  vgg_weights: str | None = None) -> Stage:
-    """Stylize ``model`` (or the previous stage's PLY) after the painting ``style``; ``config`` a StylizeConfig."""
+                  vgg_weights: str | None = None, mask=None) -> Stage:
+    """Stylize ``model`` (or the previous stage's PLY) after the painting ``style``; ``config`` a StylizeConfig;
+    ``mask`` (N,) bool: only those Gaussians change."""
     out = Path(out)
 
     def build(previous):
@@ -57,7 +58,8 @@ def stylize_stage(data: str | Path, style: str | Path, out: str | Path, config=N
         cfg = config or StylizeConfig(preset="quick")
         painting = load_style_image(style)
         scene = load_scene(data, downscale=choose_downscale(Path(data), cfg.render_max_side))
-        return Stylizer(read_ply(source), scene, painting, cfg, vgg_weights=vgg_weights, model_name=source)
+        return Stylizer(read_ply(source), scene, painting, cfg, vgg_weights=vgg_weights, model_name=source,
+                        mask=mask)
 
     def save(trainer, finished: bool, cancel) -> Path:
         from training.model.ply_io import write_ply

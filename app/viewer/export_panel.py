@@ -1,0 +1,85 @@
+"""The export dialog: format (PLY, compressed PLY as SuperSplat reads it, .splat), the SH bands kept, the whole model
+or the selection, and the file's size before it is written (training/model/export.py does the writing)."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+from imgui_bundle import imgui
+
+FORMATS = ("ply", "compressed-ply", "splat")
+SUFFIX = {"ply": ".ply", "compressed-ply": ".compressed.ply", "splat": ".splat"}
+GREY = imgui.ImVec4(0.6, 0.6, 0.6, 1.0)
+
+
+def model_to_export(app):
+    """The model on screen: the running trainer's, else the opened one after its edits."""
+    trainer = app.session.trainer
+    if trainer is not None:
+        return trainer.stylized_gaussians() if hasattr(trainer, "stylized_gaussians") else trainer.export_gaussians()
+    if app.editor is not None:
+        return app.edited_gaussians()
+    raise ValueError("no model to export: open one or run a reconstruction")
+
+
+def selection_mask(app, count: int):
+    """The editor's selection when it applies to the model being exported (same Gaussians), else None."""
+    if app.editor is None or len(app.editor.selected) != count:
+        return None
+    return app.editor.selected
+
+
+def export_section(app) -> None:
+    from training.model.export import export_size, human_size, max_sh_bands
+
+    st = app.export_settings
+    changed, i = imgui.combo("format", FORMATS.index(st["format"]), list(FORMATS))
+    if changed:
+        st["format"] = FORMATS[i]
+        st["path"] = str(Path(st["path"]).parent / ("export" + SUFFIX[st["format"]]))
+    top = max_sh_bands(st["format"])
+    if top > 0:
+        _, st["sh_bands"] = imgui.slider_int("SH bands kept", min(st["sh_bands"], top), 0, top)
+    _, st["selection_only"] = imgui.checkbox("selection only", st["selection_only"])
+    if st["format"] == "ply":
+        _, st["compact_sh"] = imgui.checkbox("only the kept bands' coefficients", st["compact_sh"])
+    _, st["path"] = imgui.input_text("file", st["path"])
+    count = _count(app, st["selection_only"])
+    if count is not None:
+        bands = 0 if top == 0 else min(st["sh_bands"], top)
+        size = export_size(st["format"], bands, count, pad_sh=not st.get("compact_sh", False))
+        imgui.text(f"{count:,} Gaussians, {human_size(size)}")
+    else:
+        imgui.text_colored(GREY, "nothing to export")
+    if imgui.button("Export"):
+        app.guarded("export", write, app)
+
+
+def _count(app, selection_only: bool) -> int | None:
+    snap = app._current_model()
+    if snap is None:
+        return None
+    n = len(snap)
+    if selection_only:
+        mask = selection_mask(app, n)
+        return None if mask is None else int(mask.sum())
+    return n
+
+
+def write(app):
+    from training.model.export import human_size, write_export
+
+    st = app.export_settings
+    g = model_to_export(app)
+    mask = None
+    if st["selection_only"]:
+        mask = selection_mask(app, len(g))
+        if mask is None:
+            raise ValueError("no selection on this model")
+    top_bands = 0 if st["format"] == "splat" else st["sh_bands"]
+    path = Path(st["path"])
+    path.parent.mkdir(parents=True, exist_ok=True)
+    result = write_export(path, g, fmt=st["format"], sh_bands=min(top_bands, g.sh_degree), mask=mask,
+                          pad_sh=not st.get("compact_sh", False))
+    app.say(f"wrote {result.path} ({result.count:,} Gaussians, {human_size(result.size)})")
+    return result
