@@ -19,7 +19,6 @@ stylizing); ``add_listener`` delivers the trainer's events (training/core/messag
 
 from __future__ import annotations
 
-import threading
 import time
 from dataclasses import asdict, dataclass, field, replace
 from pathlib import Path
@@ -32,151 +31,25 @@ import torch.nn.functional as F
 from training.stylize.color_transfer import (ColorTransform, apply_to_gaussians, apply_to_image, fit_color_transfer,
                                      foreground_pixels)
 from training.core.errors import InputError
-from training.core.messages import (EventSource, ModelSnapshot, check_cancel, checked_config_changes,
-                                    frozen_array)
+from training.core.live_trainer import LiveTrainer
+from training.core.messages import check_cancel
 from training.model.gaussians import Gaussians
 from training.raster.rasterize import resolve_device
 from training.scene.scene import Camera, Scene, over_background
 from training.stylize.region import (as_mask, blend_content, coverage_from_render, covered_pixels, indicator_sh,
                                      keep_unselected, masked_step)
 from training.stylize.style_image import check_style_array, halve, style_for_render
-from training.stylize import defaults as D
-from training.stylize.defaults import (FORWARD_ITERS_PER_VIEW, FORWARD_MIN_TOTAL, LOSSES, ORBIT_ITERS_PER_VIEW,
-                                       ORBIT_ITERS_PER_VIEW_MANY, ORBIT_MANY_VIEWS, PAPER_MAX_SIDE, PRESETS,
-                                       QUICK_ITER_FRACTION, QUICK_MAX_SIDE, SCENE_KINDS, SHN_LR_FACTOR, VIEW_ORDERS)
+from training.stylize.defaults import SHN_LR_FACTOR
+from training.stylize.config import (DEFAULT_LAMBDA_STYLE, DEFAULT_LR, StylizeConfig,  # noqa: F401  (re-exported)
+                                     paper_schedule, render_camera, schedule)
+from training.stylize.scene_match import MATCH_MIN_ALPHA, check_model_matches_scene  # noqa: F401
 from training.stylize.view_order import scene_kind, view_order
 from training.stylize.virtual_views import ViewItem, trajectory
 
-DEFAULT_LAMBDA_STYLE = D.LAMBDA_STYLE
-DEFAULT_LR = D.LR
 # Settings that shape the run when the Stylizer is built (the cameras, the trajectory, the colour transfer, the
 # device): update_config refuses them rather than ignore them.
 FIXED_AT_START = ("view_order", "virtual_views", "preset", "device", "color_transfer", "background", "scene_kind",
                   "max_side", "seed")
-MATCH_MIN_INSIDE = 0.5  # at least this fraction of the Gaussians must lie inside some camera's view
-MATCH_MIN_ALPHA = 0.02  # a render whose mean coverage is below this shows (nearly) nothing
-
-
-@dataclass
-class StylizeConfig:
-    """Stylization settings; ``None`` means "from the preset / the paper's schedule"."""
-
-    loss: str = "ccft"  # ccft | nnfm | gram
-    tau: float = D.TAU
-    k: int = D.K
-    epsilon: float = D.EPSILON
-    lambda_guide: float = D.LAMBDA_GUIDE
-    sinkhorn_iters: int = D.SINKHORN_ITERS
-    lambda_style: float | None = None  # None: DEFAULT_LAMBDA_STYLE[loss] (30 for CCFT)
-    lambda_content: float = D.LAMBDA_CONTENT
-    lr: float | None = None  # Adam learning rate of sh0 (shN: lr / 20); None: DEFAULT_LR
-    iters_per_view: int | None = None
-    min_total_iters: int | None = None
-    scene_kind: str = "auto"  # auto | forward | 360
-    view_order: str = "nearest"  # dataset | nearest | random
-    seed: int = 0
-    virtual_views: int = 0
-    dc_only: bool = False  # keep shN at its initial values (frozen): the stylization is view-independent
-    preset: str = "paper"  # paper | quick
-    max_side: int | None = None  # long side of the renders; None: the preset's
-    color_transfer: bool = True  # ARF's linear colour transfer before and after
-    backend: str = "auto"  # rasterizer backend
-    device: str = "auto"  # auto | cpu | cuda
-    background: tuple[float, float, float] = (0.0, 0.0, 0.0)
-
-    def validate(self) -> None:
-        if self.loss not in LOSSES:
-            raise ValueError(f"unknown loss {self.loss!r}; expected one of {', '.join(LOSSES)}")
-        if self.preset not in PRESETS:
-            raise ValueError(f"unknown preset {self.preset!r}; expected one of {', '.join(PRESETS)}")
-        if self.view_order not in VIEW_ORDERS:
-            raise ValueError(f"unknown view order {self.view_order!r}; expected one of {', '.join(VIEW_ORDERS)}")
-        if self.scene_kind not in SCENE_KINDS:
-            raise ValueError(f"unknown scene kind {self.scene_kind!r}; expected auto, forward or 360")
-        checks = [("k", self.k >= 1, "at least 1"), ("epsilon", self.epsilon > 0, "positive"),
-                  ("tau", self.tau > 0, "positive"), ("sinkhorn_iters", self.sinkhorn_iters >= 1, "at least 1"),
-                  ("lambda_content", self.lambda_content >= 0, "at least 0"),
-                  ("lr", self.lr is None or self.lr > 0, "positive"),
-                  ("virtual_views", self.virtual_views >= 0, "at least 0"),
-                  ("lambda_guide", self.lambda_guide >= 0, "at least 0"),
-                  ("lambda_style", self.lambda_style is None or self.lambda_style >= 0, "at least 0"),
-                  ("iters_per_view", self.iters_per_view is None or self.iters_per_view >= 1, "at least 1"),
-                  ("min_total_iters", self.min_total_iters is None or self.min_total_iters >= 0, "at least 0"),
-                  ("max_side", self.max_side is None or self.max_side >= 16, "at least 16")]
-        for name, ok, rule in checks:
-            if not ok:
-                raise ValueError(f"{name} must be {rule}, got {getattr(self, name)!r}")
-
-    @property
-    def style_weight(self) -> float:
-        return DEFAULT_LAMBDA_STYLE[self.loss] if self.lambda_style is None else float(self.lambda_style)
-
-    @property
-    def learning_rate(self) -> float:
-        if self.lr is not None:
-            return float(self.lr)
-        return DEFAULT_LR
-
-    @property
-    def render_max_side(self) -> int:
-        if self.max_side is not None:
-            return int(self.max_side)
-        return QUICK_MAX_SIDE if self.preset == "quick" else PAPER_MAX_SIDE
-
-
-def paper_schedule(kind: str, num_views: int) -> tuple[int, int]:
-    """(iterations per view, minimum total iterations) of the paper for a scene kind and number of views."""
-    if kind == "forward":
-        return FORWARD_ITERS_PER_VIEW, FORWARD_MIN_TOTAL
-    return (ORBIT_ITERS_PER_VIEW if num_views <= ORBIT_MANY_VIEWS else ORBIT_ITERS_PER_VIEW_MANY), 0
-
-
-def schedule(config: StylizeConfig, kind: str, num_views: int) -> tuple[int, int]:
-    """(iterations per view, minimum total) after the preset and the config's overrides."""
-    per_view, min_total = paper_schedule(kind, num_views)
-    if config.preset == "quick":
-        per_view = max(1, int(round(per_view * QUICK_ITER_FRACTION)))
-        min_total = int(round(min_total * QUICK_ITER_FRACTION))
-    if config.iters_per_view is not None:
-        per_view = int(config.iters_per_view)
-    if config.min_total_iters is not None:
-        min_total = int(config.min_total_iters)
-    return per_view, min_total
-
-
-
-def render_camera(camera: Camera, max_side: int) -> Camera:
-    """The camera at the stylization resolution (never upscaled)."""
-    factor = min(1.0, max_side / max(camera.width, camera.height))
-    return camera if factor >= 1.0 else camera.scaled(factor)
-
-
-def check_model_matches_scene(gaussians: Gaussians, cameras: list[Camera], model_name: str | Path | None = None,
-                              near: float = 0.01) -> float:
-    """Fraction of Gaussians inside at least one camera's view frustum; InputError when most are outside.
-
-    A model reconstructed from these photos lies in front of the cameras that saw it; a model from another scene
-    (or in another coordinate frame) mostly does not."""
-    means = gaussians.means.detach().to("cpu", torch.float64).numpy()
-    if len(means) == 0:
-        raise InputError(model_name, "the model holds no Gaussians")
-    inside = np.zeros(len(means), dtype=bool)
-    for cam in cameras:
-        R = cam.world_to_camera[:3, :3]
-        t = cam.world_to_camera[:3, 3]
-        pc = means @ R.T + t
-        z = pc[:, 2]
-        front = z > near
-        zs = np.where(front, z, 1.0)
-        u = cam.fx * pc[:, 0] / zs + cam.cx
-        v = cam.fy * pc[:, 1] / zs + cam.cy
-        mx, my = 0.1 * cam.width, 0.1 * cam.height  # a small margin: splats just outside still reach the image
-        inside |= front & (u > -mx) & (u < cam.width + mx) & (v > -my) & (v < cam.height + my)
-    fraction = float(inside.mean())
-    if fraction < MATCH_MIN_INSIDE:
-        raise InputError(model_name, f"only {fraction:.0%} of its {len(means)} Gaussians lie inside any camera's "
-                                     "view: the model does not belong to this scene (or to its coordinate frame)")
-    return fraction
 
 
 @dataclass
@@ -189,7 +62,7 @@ class StageTimes:
         self.totals[name] = self.totals.get(name, 0.0) + seconds
 
 
-class Stylizer:
+class Stylizer(LiveTrainer):
     """Stylize ``gaussians`` (a reconstruction of ``scene``) after ``style_image``, one ``step()`` at a time.
 
     ``style_image``: float32 (H, W, 3) in [0, 1] (see ``training.stylize.style_image.load_style_image``).
@@ -199,6 +72,8 @@ class Stylizer:
     ``mask``: (N,) bool, the Gaussians to stylize (None: all); the others' colours stay bit-identical through the
     steps and both colour transfers (training/stylize/region.py); ``set_mask`` changes it between steps.
     """
+
+    FIXED_AT_START = FIXED_AT_START
 
     def __init__(self, gaussians: Gaussians, scene: Scene, style_image: np.ndarray, config: StylizeConfig | None = None,
                  vgg: torch.nn.Module | None = None, vgg_weights: str | None = None,
@@ -282,15 +157,8 @@ class Stylizer:
         self.finished = False
         # Threads: step() runs on one; snapshot() and update_config() may come from another. The lock covers every
         # write to the model's tensors (and their replacement), so a snapshot never sees half an update.
-        self._model_lock = threading.Lock()
-        self._pending_config: StylizeConfig | None = None
-        self._version = 0
-        self._geometry_version = 0
-        self._last_snapshot: ModelSnapshot | None = None
+        self._init_live("stylization", "stylize")
         self._capacity: np.ndarray | None = None
-        self.events = EventSource("stylize")
-        self.add_listener = self.events.add_listener
-        self.remove_listener = self.events.remove_listener
 
     # ------------------------------------------------------------------ schedule
     @property
@@ -396,21 +264,9 @@ class Stylizer:
         return feats
 
     # ------------------------------------------------------------------ config sync
-    def update_config(self, **changes: Any) -> StylizeConfig:
-        """Validate ``changes`` now (ValueError naming the setting) and apply them at the start of the next step;
-        any thread. Returns the config the next step will use."""
-        with self._model_lock:
-            base = self._pending_config or self.config
-            new = checked_config_changes(base, changes, FIXED_AT_START, "stylization")
-            new.validate()
-            self._pending_config = new
-        return new
-
     def _sync(self) -> None:
         """Apply the (possibly changed) config: loss object and its parameters, optimiser, learning rate."""
-        with self._model_lock:
-            if self._pending_config is not None:
-                self.config, self._pending_config = self._pending_config, None
+        self._take_pending_config()
         cfg = self.config
         cfg.validate()
         if self.style_loss is None or cfg.loss != self._loss_name:
@@ -554,24 +410,37 @@ class Stylizer:
             check_cancel(cancel)
             self.step()
 
-    # ------------------------------------------------------------------ the viewer's copy
-    def snapshot(self) -> ModelSnapshot:
-        """A consistent copy of the model as a renderer draws it; any thread. While stylizing only the colours
-        change: their arrays are new, the geometry's are the previous snapshot's."""
+    # ------------------------------------------------------------------ the viewer's copy and edits
+    def _snapshot_step(self) -> int:
+        return self.iteration
+
+    def _snapshot_geometry(self):
+        g = self.gaussians
+        return g.means, self._scales, g.rotations, self._opacities
+
+    def _snapshot_colours(self):
+        return self.gaussians.sh, self.gaussians.sh_degree
+
+    def keep(self, keep) -> None:
+        """Keep only the Gaussians where ``keep`` (N,) bool (the viewer deleted or cropped the others); any thread,
+        effective from the next step. The colour optimiser restarts (its moments belonged to the old rows)."""
+        keep_t = torch.as_tensor(np.asarray(keep, dtype=bool))
+        if keep_t.shape != (len(self.gaussians),):
+            raise ValueError(f"keep must have {len(self.gaussians)} entries, got {tuple(keep_t.shape)}")
+        if not bool(keep_t.any()):
+            raise ValueError("that would remove every Gaussian")
+        index = keep_t.nonzero()[:, 0].to(self.device)
         with self._model_lock:
-            last = self._last_snapshot
-            if last is not None and last.version == self._version:
-                return last
-            g = self.gaussians
-            if last is not None and last.geometry_version == self._geometry_version:
-                geometry = (last.means, last.scales, last.quats, last.opacities)
-            else:
-                geometry = (frozen_array(g.means), frozen_array(self._scales), frozen_array(g.rotations),
-                            frozen_array(self._opacities))
-            snap = ModelSnapshot(self._version, self._geometry_version, self.iteration, *geometry,
-                                 frozen_array(g.sh), g.sh_degree)
-            self._last_snapshot = snap
-            return snap
+            self.gaussians = self.gaussians.detached().subset(index)
+            self._scales, self._opacities = self._scales[index], self._opacities[index]
+            self._initial_sh, self.original_sh = self._initial_sh[index], self.original_sh[index]
+            self._frozen = self._frozen.subset(index)
+            self._mask = None if self._mask is None else self._mask[keep_t]
+            self._optimizer = None
+            self._content_cache = None  # a virtual view's content is a render of the model
+            self._version += 1
+            self._geometry_version += 1
+        self.events.emit("structure", self.iteration, {"num_gaussians": len(self.gaussians)})
 
     # ------------------------------------------------------------------ after
     def finish(self, cancel=None) -> ColorTransform | None:

@@ -1,0 +1,82 @@
+"""What makes a trainer drivable from another thread, shared by both trainers: the model lock, config changes
+applied at the next step, versions, snapshots and events (the message types are in ``messages``).
+
+A trainer mixes ``LiveTrainer`` in, calls ``_init_live(config_name, stage)`` in its constructor, takes
+``self._model_lock`` around every write to its model's tensors (bumping ``_version``, and ``_geometry_version``
+when means, scales, rotations, opacities or the count change), calls ``_take_pending_config()`` at the start of
+each step, and provides ``_snapshot_geometry()`` and ``_snapshot_colours()``.
+"""
+
+from __future__ import annotations
+
+import threading
+from typing import Any
+
+import torch
+
+from training.core.messages import EventSource, ModelSnapshot, checked_config_changes, frozen_array
+
+
+class LiveTrainer:
+    FIXED_AT_START: tuple[str, ...] = ()  # config fields only construction may set
+
+    def _init_live(self, what: str, stage: str) -> None:
+        self._what = what
+        self._model_lock = threading.Lock()
+        self._pending_config = None
+        self._version = 0
+        self._geometry_version = 0
+        self._last_snapshot: ModelSnapshot | None = None
+        self.events = EventSource(stage)
+
+    def add_listener(self, listener) -> None:
+        self.events.add_listener(listener)
+
+    def remove_listener(self, listener) -> None:
+        self.events.remove_listener(listener)
+
+    # ------------------------------------------------------------------ config
+    def update_config(self, **changes: Any):
+        """Validate ``changes`` now (ValueError naming the setting) and apply them at the start of the next step;
+        any thread. Returns the config the next step will use."""
+        with self._model_lock:
+            new = checked_config_changes(self._pending_config or self.config, changes, self.FIXED_AT_START,
+                                         self._what)
+            new.validate()
+            self._pending_config = new
+        return new
+
+    def _take_pending_config(self) -> None:
+        with self._model_lock:
+            if self._pending_config is not None:
+                self.config, self._pending_config = self._pending_config, None
+
+    # ------------------------------------------------------------------ snapshots
+    def _snapshot_step(self) -> int:
+        raise NotImplementedError
+
+    def _snapshot_geometry(self) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor, torch.Tensor]:
+        """(means, scales, unit quats, opacities), activated; called with the lock held."""
+        raise NotImplementedError
+
+    def _snapshot_colours(self) -> tuple[torch.Tensor, int]:
+        """(SH coefficients (N, K, 3), degree); called with the lock held."""
+        raise NotImplementedError
+
+    def snapshot(self) -> ModelSnapshot:
+        """A consistent copy of the model as a renderer draws it (activated, float32, read-only); any thread.
+        When only the colours changed since the last snapshot, the geometry's arrays are that snapshot's."""
+        with self._model_lock:
+            last = self._last_snapshot
+            if last is not None and last.version == self._version:
+                return last
+            with torch.no_grad():
+                if last is not None and last.geometry_version == self._geometry_version:
+                    geometry = (last.means, last.scales, last.quats, last.opacities)
+                else:
+                    geometry = tuple(frozen_array(t) for t in self._snapshot_geometry())
+                sh, degree = self._snapshot_colours()
+                snap = ModelSnapshot(self._version, self._geometry_version, self._snapshot_step(), *geometry,
+                                     frozen_array(sh), degree)
+            self._last_snapshot = snap
+            return snap

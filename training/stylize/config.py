@@ -1,0 +1,109 @@
+"""Stylization settings (``StylizeConfig``, validated, the paper's defaults from ``defaults``) and the schedule they
+imply: iterations per view and in all, and the render resolution."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+from training.scene.scene import Camera
+from training.stylize import defaults as D
+from training.stylize.defaults import (FORWARD_ITERS_PER_VIEW, FORWARD_MIN_TOTAL, LOSSES, ORBIT_ITERS_PER_VIEW,
+                                       ORBIT_ITERS_PER_VIEW_MANY, ORBIT_MANY_VIEWS, PAPER_MAX_SIDE, PRESETS,
+                                       QUICK_ITER_FRACTION, QUICK_MAX_SIDE, SCENE_KINDS, VIEW_ORDERS)
+
+DEFAULT_LAMBDA_STYLE = D.LAMBDA_STYLE
+DEFAULT_LR = D.LR
+
+
+@dataclass
+class StylizeConfig:
+    """Stylization settings; ``None`` means "from the preset / the paper's schedule"."""
+
+    loss: str = "ccft"  # ccft | nnfm | gram
+    tau: float = D.TAU
+    k: int = D.K
+    epsilon: float = D.EPSILON
+    lambda_guide: float = D.LAMBDA_GUIDE
+    sinkhorn_iters: int = D.SINKHORN_ITERS
+    lambda_style: float | None = None  # None: DEFAULT_LAMBDA_STYLE[loss] (30 for CCFT)
+    lambda_content: float = D.LAMBDA_CONTENT
+    lr: float | None = None  # Adam learning rate of sh0 (shN: lr / 20); None: DEFAULT_LR
+    iters_per_view: int | None = None
+    min_total_iters: int | None = None
+    scene_kind: str = "auto"  # auto | forward | 360
+    view_order: str = "nearest"  # dataset | nearest | random
+    seed: int = 0
+    virtual_views: int = 0
+    dc_only: bool = False  # keep shN at its initial values (frozen): the stylization is view-independent
+    preset: str = "paper"  # paper | quick
+    max_side: int | None = None  # long side of the renders; None: the preset's
+    color_transfer: bool = True  # ARF's linear colour transfer before and after
+    backend: str = "auto"  # rasterizer backend
+    device: str = "auto"  # auto | cpu | cuda
+    background: tuple[float, float, float] = (0.0, 0.0, 0.0)
+
+    def validate(self) -> None:
+        if self.loss not in LOSSES:
+            raise ValueError(f"unknown loss {self.loss!r}; expected one of {', '.join(LOSSES)}")
+        if self.preset not in PRESETS:
+            raise ValueError(f"unknown preset {self.preset!r}; expected one of {', '.join(PRESETS)}")
+        if self.view_order not in VIEW_ORDERS:
+            raise ValueError(f"unknown view order {self.view_order!r}; expected one of {', '.join(VIEW_ORDERS)}")
+        if self.scene_kind not in SCENE_KINDS:
+            raise ValueError(f"unknown scene kind {self.scene_kind!r}; expected auto, forward or 360")
+        checks = [("k", self.k >= 1, "at least 1"), ("epsilon", self.epsilon > 0, "positive"),
+                  ("tau", self.tau > 0, "positive"), ("sinkhorn_iters", self.sinkhorn_iters >= 1, "at least 1"),
+                  ("lambda_content", self.lambda_content >= 0, "at least 0"),
+                  ("lr", self.lr is None or self.lr > 0, "positive"),
+                  ("virtual_views", self.virtual_views >= 0, "at least 0"),
+                  ("lambda_guide", self.lambda_guide >= 0, "at least 0"),
+                  ("lambda_style", self.lambda_style is None or self.lambda_style >= 0, "at least 0"),
+                  ("iters_per_view", self.iters_per_view is None or self.iters_per_view >= 1, "at least 1"),
+                  ("min_total_iters", self.min_total_iters is None or self.min_total_iters >= 0, "at least 0"),
+                  ("max_side", self.max_side is None or self.max_side >= 16, "at least 16")]
+        for name, ok, rule in checks:
+            if not ok:
+                raise ValueError(f"{name} must be {rule}, got {getattr(self, name)!r}")
+
+    @property
+    def style_weight(self) -> float:
+        return DEFAULT_LAMBDA_STYLE[self.loss] if self.lambda_style is None else float(self.lambda_style)
+
+    @property
+    def learning_rate(self) -> float:
+        if self.lr is not None:
+            return float(self.lr)
+        return DEFAULT_LR
+
+    @property
+    def render_max_side(self) -> int:
+        if self.max_side is not None:
+            return int(self.max_side)
+        return QUICK_MAX_SIDE if self.preset == "quick" else PAPER_MAX_SIDE
+
+
+def paper_schedule(kind: str, num_views: int) -> tuple[int, int]:
+    """(iterations per view, minimum total iterations) of the paper for a scene kind and number of views."""
+    if kind == "forward":
+        return FORWARD_ITERS_PER_VIEW, FORWARD_MIN_TOTAL
+    return (ORBIT_ITERS_PER_VIEW if num_views <= ORBIT_MANY_VIEWS else ORBIT_ITERS_PER_VIEW_MANY), 0
+
+
+def schedule(config: StylizeConfig, kind: str, num_views: int) -> tuple[int, int]:
+    """(iterations per view, minimum total) after the preset and the config's overrides."""
+    per_view, min_total = paper_schedule(kind, num_views)
+    if config.preset == "quick":
+        per_view = max(1, int(round(per_view * QUICK_ITER_FRACTION)))
+        min_total = int(round(min_total * QUICK_ITER_FRACTION))
+    if config.iters_per_view is not None:
+        per_view = int(config.iters_per_view)
+    if config.min_total_iters is not None:
+        min_total = int(config.min_total_iters)
+    return per_view, min_total
+
+
+
+def render_camera(camera: Camera, max_side: int) -> Camera:
+    """The camera at the stylization resolution (never upscaled)."""
+    factor = min(1.0, max_side / max(camera.width, camera.height))
+    return camera if factor >= 1.0 else camera.scaled(factor)

@@ -1,0 +1,44 @@
+"""Is this model a reconstruction of this scene? A model from another scene or coordinate frame mostly lies outside
+the cameras' views, and its renders of them are empty: both are refused with one line before any stylization."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import torch
+
+from training.core.errors import InputError
+from training.model.gaussians import Gaussians
+from training.scene.scene import Camera
+
+MATCH_MIN_INSIDE = 0.5  # at least this fraction of the Gaussians must lie inside some camera's view
+MATCH_MIN_ALPHA = 0.02  # a render whose mean coverage is below this shows (nearly) nothing
+
+
+def check_model_matches_scene(gaussians: Gaussians, cameras: list[Camera], model_name: str | Path | None = None,
+                              near: float = 0.01) -> float:
+    """Fraction of Gaussians inside at least one camera's view frustum; InputError when most are outside.
+
+    A model reconstructed from these photos lies in front of the cameras that saw it; a model from another scene
+    (or in another coordinate frame) mostly does not."""
+    means = gaussians.means.detach().to("cpu", torch.float64).numpy()
+    if len(means) == 0:
+        raise InputError(model_name, "the model holds no Gaussians")
+    inside = np.zeros(len(means), dtype=bool)
+    for cam in cameras:
+        R = cam.world_to_camera[:3, :3]
+        t = cam.world_to_camera[:3, 3]
+        pc = means @ R.T + t
+        z = pc[:, 2]
+        front = z > near
+        zs = np.where(front, z, 1.0)
+        u = cam.fx * pc[:, 0] / zs + cam.cx
+        v = cam.fy * pc[:, 1] / zs + cam.cy
+        mx, my = 0.1 * cam.width, 0.1 * cam.height  # a small margin: splats just outside still reach the image
+        inside |= front & (u > -mx) & (u < cam.width + mx) & (v > -my) & (v < cam.height + my)
+    fraction = float(inside.mean())
+    if fraction < MATCH_MIN_INSIDE:
+        raise InputError(model_name, f"only {fraction:.0%} of its {len(means)} Gaussians lie inside any camera's "
+                                     "view: the model does not belong to this scene (or to its coordinate frame)")
+    return fraction
