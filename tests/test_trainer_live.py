@@ -216,3 +216,25 @@ def test_stylize_events_and_cancelled_finish(tiny, vgg):
     assert torch.equal(s.gaussians.sh, before) and not s.finished
     with pytest.raises(Cancelled):
         s.style_distance(cancel=lambda: True)
+
+
+def test_stylize_keep_removes_gaussians_between_steps(tiny, vgg):
+    s = stylizer(tiny, vgg)
+    s.step()
+    before = s.snapshot()
+    n = len(before)
+    keep = np.ones(n, dtype=bool)
+    keep[::3] = False  # a deletion from another thread, as the viewer's Edit panel makes it
+    events: list[TrainerEvent] = []
+    s.add_listener(events.append)
+    done = threading.Event()
+    threading.Thread(target=lambda: (s.keep(keep), done.set())).start()
+    assert done.wait(10)
+    after = s.snapshot()
+    assert len(after) == keep.sum() and after.geometry_version > before.geometry_version
+    assert np.array_equal(after.means, before.means[keep]) and np.array_equal(after.sh, before.sh[keep])
+    assert any(e.kind == "structure" and e.metrics["num_gaussians"] == keep.sum() for e in events)
+    s.step()  # the next step trains the smaller model
+    assert s.snapshot().sh.shape[0] == keep.sum()
+    with pytest.raises(ValueError, match="every Gaussian"):
+        s.keep(np.zeros(len(after), dtype=bool))

@@ -175,7 +175,21 @@ class ViewerApp:
         rows = self.editor.index[self.editor.selected] if selection_only else self.editor.index
         if selection_only and len(rows) == 0:
             raise ValueError("nothing is selected")
+        if self.source_gaussians is None:
+            raise ValueError("the edited model belongs to the run: export it from the running trainer")
         return self.source_gaussians.subset(torch.as_tensor(rows, dtype=torch.long))
+
+    def edit_live(self) -> None:
+        """Select and delete in the model a running stylization is training; deletions reach it at its next step."""
+        from app.viewer.selection import Editor
+
+        trainer = self.session.trainer
+        if trainer is None or not hasattr(trainer, "keep") or not self.session.running:
+            raise ValueError("no running stylization to edit (reconstructions are edited once saved)")
+        self.editor = Editor(trainer.snapshot(), on_keep=trainer.keep)
+        self.source_gaussians = None
+        self.live_editing = True
+        self.say("editing the running stylization's model: deletions and crops apply to it and cannot be undone")
 
     def edited(self) -> bool:
         return self.editor is not None and (len(self.editor.index) != len(self.source_gaussians)
@@ -359,17 +373,30 @@ class ViewerApp:
                 elif item.kind == "warning":
                     self.say(f"warning: {item.message}")
         now = time.perf_counter()
+        editing_live = getattr(self, "live_editing", False)
+        if editing_live and (not self.session.running or self.editor is None):
+            self.live_editing = editing_live = False
         if (self.session.trainer is not None and now - self._last_snapshot_at >= self.refresh_s
                 and (not self.session.running or self.view.may_draw_now())):
             snap = self.session.snapshot()
             self._last_snapshot_at = now
             if snap is not None and self.view.show(snap, 0):
                 self._describe(snap)
+                if editing_live and len(snap) == self.editor.count:
+                    self.view.renderer.set_flags(self.editor.flags(), 0)
                 if self.view.camera is None:
                     self._place_camera()
         if self.original is not None and self.view.settings.split:
             self.view.show(self.original, 1)
-        if self.editor is not None and self.session.trainer is None and self._editor_shown != self.editor.version:
+        if editing_live and self._editor_shown != self.editor.version:
+            snap = self.session.snapshot()
+            if snap is not None and len(snap) == self.editor.count:
+                self.view.show(snap, 0)
+                self.view.renderer.set_flags(self.editor.flags(), 0)
+                self._editor_shown = self.editor.version
+                self.view.dirty = True
+        elif (self.editor is not None and self.session.trainer is None
+              and self._editor_shown != self.editor.version):
             self.view.show(self.editor.model, 0)
             self.view.renderer.set_flags(self.editor.flags(), 0)
             self._describe(self.editor.model)

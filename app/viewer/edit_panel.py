@@ -94,8 +94,10 @@ def _edit_contents(app) -> None:
     if ed is None:
         imgui.text_colored(GREY, "open a model to select and edit it")
         return
-    if app.session.running:
+    if app.session.running and not getattr(app, "live_editing", False):
         imgui.text_colored(GREY, "a trainer is running: edits apply to the opened model")
+        if app.session.status().stage == "stylize" and imgui.button("Edit the running stylization"):
+            app.guarded("edit", app.edit_live)
     imgui.text(f"{ed.count:,} Gaussians, {int(ed.selected.sum()):,} selected, {int(ed.hidden.sum()):,} hidden")
     changed, i = imgui.combo("tool", TOOLS.index(app.tool), list(TOOLS))
     if changed:

@@ -98,6 +98,8 @@ class Editor:
     undo_stack: list[EditState] = field(default_factory=list)
     redo_stack: list[EditState] = field(default_factory=list)
     version: int = 0  # bumped by every change the view must show
+    on_keep: object = None  # called with each keep-mask: a running trainer takes the same edit
+
 
     def __post_init__(self) -> None:
         n = len(self.model)
@@ -142,7 +144,13 @@ class Editor:
         return self.keep(box if inside else ~box)
 
     def keep(self, keep: np.ndarray) -> np.ndarray:
-        self._push()
+        if self.on_keep is not None:
+            # a running trainer cannot take Gaussians back: its edits are final, and the history starts here
+            self.on_keep(keep)
+            self.undo_stack.clear()
+            self.redo_stack.clear()
+        else:
+            self._push()
         self.model = subset(self.model, keep)
         self.selected = self.selected[keep]
         self.hidden = self.hidden[keep]
