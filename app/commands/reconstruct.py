@@ -1,7 +1,10 @@
 """``splatstyler reconstruct DATA -o OUT``: train a 3DGS model with the paper's regularizers.
 
-Writes OUT/point_cloud.ply (standard 3DGS layout), OUT/report.json (metrics and settings) and OUT/checkpoint.pt
-(every --checkpoint-every iterations, on Ctrl-C and at the end; ``--resume`` continues from it).
+Writes OUT/point_cloud.ply (standard 3DGS layout), OUT/report.json (metrics and settings), OUT/renders/ and
+OUT/contact_sheet.png (each test view's photo beside its render, and the depth; training/reconstruct/results.py)
+and OUT/checkpoint.pt (every --checkpoint-every iterations, on Ctrl-C and at the end; ``--resume`` continues from
+it). The training resolution comes from the preset's target long side (training/reconstruct/resolution.py); a
+time estimate from the first timed steps is printed before the progress bar.
 """
 
 from __future__ import annotations
@@ -23,11 +26,15 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("data", metavar="DATA", help="scene: COLMAP folder (images/ + sparse/), or transforms.json")
     p.add_argument("-o", "--output", required=True, metavar="OUT", help="output folder")
     p.add_argument("--preset", choices=PRESETS, default="quick",
-                   help="quick: minutes on a CPU (downscaled, 3000 iterations); standard: 7000 iterations at "
-                        "1/4 resolution; paper: 3DGS's 30k iterations at full resolution, for a GPU "
-                        "(default: quick)")
+                   help="quick: minutes on a CPU (long side at most 400 px, 3000 iterations); standard: 7000 "
+                        "iterations, long side at most 1000 px; paper: 3DGS's 30k iterations at full resolution, "
+                        "for a GPU (default: quick)")
     p.add_argument("--iters", type=int, default=None, metavar="N", help="number of iterations (overrides preset)")
-    p.add_argument("--downscale", type=int, default=None, metavar="N", help="divide image sizes by N")
+    p.add_argument("--downscale", type=int, default=None, metavar="N",
+                   help="divide image sizes by the whole number N (images_N cache; overrides the preset's size)")
+    p.add_argument("--max-side", type=int, default=None, metavar="PX",
+                   help="train with the long side at most PX pixels, by the smallest whole factor that gets there "
+                        "(overrides the preset's: quick 400, standard 1000, paper full size)")
     p.add_argument("--depth", choices=("sfm", "mono", "none"), default=None,
                    help="depth targets: sparse SfM depth (default), Depth Anything V2 aligned to SfM, or none. "
                         "With sfm on a scene without SfM points the depth term is switched off, with a warning")
@@ -54,8 +61,14 @@ def _config(args):
     cfg = ReconstructConfig.from_preset(args.preset)
     if args.iters is not None:
         cfg.iterations = args.iters
+    if args.downscale is not None and args.max_side is not None:
+        from training.core.errors import InputError
+
+        raise InputError(None, "give --downscale or --max-side, not both")
     if args.downscale is not None:
-        cfg.downscale = args.downscale
+        cfg.downscale, cfg.max_side = args.downscale, None
+    if args.max_side is not None:
+        cfg.max_side = args.max_side
     if args.depth is not None:
         cfg.depth = args.depth
     cfg.mono_depth_model = args.mono_depth_model
@@ -106,11 +119,15 @@ def run(args) -> int:
     from training.scene.loader import load_scene
     from training.core.atomic_write import atomic_open
     from training.reconstruct.metrics import constant_color_psnr
+    from training.reconstruct.resolution import training_downscale
+    from training.reconstruct.time_estimate import estimate_seconds, format_duration, time_first_steps
+    from training.core.atomic_write import check_output_dir, make_output_dir
 
     _one_line_warnings()
     out = Path(args.output)
     if out.exists() and not out.is_dir():
         raise InputError(out, "the output path exists and is not a folder")
+    check_output_dir(out)
     ckpt_path = out / CHECKPOINT_NAME
     state = None
     if args.resume:
@@ -125,9 +142,19 @@ def run(args) -> int:
         raise InputError(None, f"--iters must be at least 1, got {cfg.iterations}")
     if cfg.downscale < 1:
         raise InputError(None, f"--downscale must be at least 1, got {cfg.downscale}")
+    if cfg.max_side is not None and cfg.max_side < 16:
+        raise InputError(None, f"--max-side must be at least 16 pixels, got {cfg.max_side}")
+    if state is None:
+        # resolved once; a resumed run keeps the factor its checkpoint recorded
+        cfg.downscale = training_downscale(args.data, cfg.max_side, cfg.downscale)
 
     scene = load_scene(args.data, downscale=cfg.downscale)
     trainer = Reconstructor(scene, cfg)
+    cam0 = scene.cameras[0]
+    why = (f"long side at most {cfg.max_side} px" if cfg.max_side is not None else
+           ("full size" if cfg.downscale == 1 else f"--downscale {cfg.downscale}"))
+    print(f"training at {cam0.width}x{cam0.height} pixels (factor {cfg.downscale}: {why}; {cfg.preset} preset, "
+          f"{cfg.iterations} iterations)", file=sys.stderr)
     elapsed = 0.0
     report_extra: dict = {}
     if state is not None:
@@ -140,7 +167,7 @@ def run(args) -> int:
         report_extra = {"initial_psnr": init["psnr"], "initial_ssim": init["ssim"],
                         "constant_color_psnr": constant_color_psnr(scene, scene.train_indices,
                                                                    scene.test_indices or scene.train_indices)}
-    out.mkdir(parents=True, exist_ok=True)
+    make_output_dir(out)
 
     def checkpoint() -> None:
         s = trainer.state_dict()
@@ -150,17 +177,27 @@ def run(args) -> int:
 
     from app.progress import ProgressBar
 
-    bar = ProgressBar(initial=trainer.step_count, desc="reconstruct", disable=args.no_progress,
-                      postfix={"loss": "loss", "psnr": "psnr", "num_gaussians": "n"})
-    trainer.add_listener(bar)
     t_start = time.perf_counter()
     try:
+        start_step = trainer.step_count
+        per_step = time_first_steps(trainer)
+        if per_step > 0:
+            estimate = estimate_seconds(per_step, trainer.total_iters - trainer.step_count)
+            report_extra["estimated_seconds"] = (time.perf_counter() - t_start) + estimate
+            print(f"estimated time: about {format_duration(report_extra['estimated_seconds'])} on this machine for "
+                  f"{trainer.total_iters - start_step} iterations ({1000 * per_step:.0f} ms per step now, "
+                  f"{len(trainer.gaussians)} Gaussians; steps slow down as densification adds Gaussians)",
+                  file=sys.stderr, flush=True)
+        bar = ProgressBar(initial=trainer.step_count, desc="reconstruct", disable=args.no_progress,
+                          postfix={"loss": "loss", "psnr": "psnr", "num_gaussians": "n"})
+        trainer.add_listener(bar)
         while not trainer.done:
             trainer.step()
             if args.checkpoint_every > 0 and trainer.step_count % args.checkpoint_every == 0:
                 checkpoint()
     except KeyboardInterrupt:
-        bar.close()
+        if "bar" in locals():
+            bar.close()
         checkpoint()
         print(f"interrupted at iteration {trainer.step_count}; checkpoint saved to {ckpt_path} "
               "(continue with --resume)", file=sys.stderr)
@@ -173,10 +210,14 @@ def run(args) -> int:
     write_ply(out / "point_cloud.ply", model)
     train = trainer.evaluate(scene.train_indices)
     test = trainer.evaluate(scene.test_indices)
+    views = _write_results(trainer, out, scene.test_indices or scene.train_indices)
     stats = scale_stats(model.scales / trainer.extent)
     report = {
         "train_psnr": train["psnr"], "train_ssim": train["ssim"],
-        "test_psnr": test["psnr"], "test_ssim": test["ssim"], "test_views": test["views"],
+        "test_psnr": test["psnr"], "test_ssim": test["ssim"],
+        "test_lpips": views["lpips"] if scene.test_indices else None, "test_views": test["views"],
+        "views": views["views"], "views_split": "test" if scene.test_indices else "train",
+        "contact_sheet": views.get("contact_sheet"),
         "num_gaussians": len(model),
         "aniso_p95": stats["aniso_p95"], "smax_p95": stats["smax_p95"],
         "seconds": seconds,
@@ -194,6 +235,26 @@ def run(args) -> int:
     }
     with atomic_open(out / "report.json", "w") as f:
         json.dump(report, f, indent=2)
-    print(f"wrote {out / 'point_cloud.ply'} ({len(model)} Gaussians); test PSNR "
-          f"{'n/a' if test['psnr'] is None else format(test['psnr'], '.2f')} dB", file=sys.stderr)
+    def fmt(value, spec):
+        return "n/a" if value is None else format(value, spec)
+
+    print(f"wrote {out / 'point_cloud.ply'} ({len(model)} Gaussians) in {format_duration(seconds)}; test PSNR "
+          f"{fmt(test['psnr'], '.2f')} dB, SSIM {fmt(test['ssim'], '.3f')}, LPIPS {fmt(report['test_lpips'], '.3f')}"
+          f"; renders in {out / 'renders'}, contact sheet {out / 'contact_sheet.png'}", file=sys.stderr)
     return 0
+
+
+def _write_results(trainer, out: Path, indices) -> dict:
+    """Renders, contact sheet and per-view metrics; LPIPS only when its weights can be had (a warning otherwise)."""
+    import warnings
+
+    from training.reconstruct.lpips import LPIPS, load_lpips_weights
+    from training.reconstruct.results import write_view_results
+
+    try:
+        lpips = LPIPS(load_lpips_weights(log=lambda line: print(f"splatstyler: {line}", file=sys.stderr)))
+    except Exception as exc:  # no network and no cache: the other metrics and the pictures still matter
+        warnings.warn(f"LPIPS skipped: its VGG weights could not be fetched ({type(exc).__name__}: {exc})"
+                      .splitlines()[0])
+        lpips = None
+    return write_view_results(trainer, out, list(indices), lpips=lpips)

@@ -12,6 +12,41 @@ import tempfile
 from pathlib import Path
 from typing import IO, Iterator
 
+from training.core.errors import InputError
+
+
+def check_output_dir(path: str | Path, what: str = "output folder") -> None:
+    """Fail early, before hours of work, when ``path`` could not be created: the nearest existing ancestor must be
+    a writable folder. Creates nothing."""
+    path = Path(path).absolute()
+    if path.is_dir():
+        ancestor = path
+    else:
+        if path.exists():
+            raise InputError(path, f"cannot create the {what}: it exists and is not a folder")
+        ancestor = path.parent
+        while not ancestor.exists() and ancestor != ancestor.parent:
+            ancestor = ancestor.parent
+        if not ancestor.is_dir():
+            raise InputError(path, f"cannot create the {what}: {ancestor} is a file, not a folder")
+    if not os.access(ancestor, os.W_OK | os.X_OK):
+        raise InputError(path, f"cannot create the {what}: no permission to write in {ancestor}")
+
+
+def make_output_dir(path: str | Path, what: str = "output folder") -> Path:
+    """``mkdir -p`` for an output; a folder that cannot be made is an InputError naming it and saying why."""
+    path = Path(path)
+    try:
+        path.mkdir(parents=True, exist_ok=True)
+    except FileExistsError:
+        raise InputError(path, f"cannot create the {what}: a file of that name (or above it) is in the way") \
+            from None
+    except OSError as exc:
+        raise InputError(path, f"cannot create the {what}: {exc.strerror or exc}") from None
+    if not path.is_dir():
+        raise InputError(path, f"cannot create the {what}: it exists and is not a folder")
+    return path
+
 
 @contextlib.contextmanager
 def atomic_path(path: str | Path) -> Iterator[Path]:
@@ -19,8 +54,14 @@ def atomic_path(path: str | Path) -> Iterator[Path]:
 
     Use it for writers that want a file name (OpenImageIO, numpy, torch.save)."""
     path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp" + path.suffix, dir=path.parent)
+    try:
+        path.parent.mkdir(parents=True, exist_ok=True)
+        fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp" + path.suffix, dir=path.parent)
+    except OSError as exc:  # the one-line form every other input error has, naming the output
+        why = exc.strerror or str(exc)
+        if isinstance(exc, (FileExistsError, NotADirectoryError)):
+            why = "a file is in the way of its folder"
+        raise InputError(path, f"cannot write this output: {why}") from None
     os.close(fd)
     tmp_path = Path(tmp)
     try:

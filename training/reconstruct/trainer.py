@@ -51,15 +51,19 @@ DEVICES = ("auto", "cpu", "cuda")
 MAX_CONSECUTIVE_RECOVERIES = 20
 # Settings that shape the run when the trainer is built (the scene's resolution, the depth targets, the initial model,
 # the device, the background the photos are composited over): update_config refuses them rather than ignore them.
-FIXED_AT_START = ("preset", "downscale", "depth", "mono_depth_model", "device", "background", "random_init_points",
-                  "seed")
+FIXED_AT_START = ("preset", "downscale", "max_side", "depth", "mono_depth_model", "device", "background",
+                  "random_init_points", "seed")
 
 
 @dataclass
 class ReconstructConfig:
     preset: str = "standard"
     iterations: int = 7000
-    downscale: int = 4  # used by whoever loads the scene (the CLI); the trainer takes the scene as given
+    # The training resolution, applied by whoever loads the scene (training/reconstruct/resolution.py); the trainer
+    # takes the scene as given. max_side (the longest image side at most, in pixels) wins when set; downscale is
+    # the whole factor used when max_side is None (and the factor max_side resolved to, once resolved).
+    downscale: int = 4
+    max_side: int | None = 1000
     sh_degree: int = 3
     sh_interval: int = 1000
     lr_means_init: float = 1.6e-4  # x scene extent
@@ -94,18 +98,20 @@ class ReconstructConfig:
 
     @classmethod
     def from_preset(cls, name: str, **overrides) -> "ReconstructConfig":
-        """``quick`` (minutes on 2 CPU cores), ``standard``, or ``paper`` (3DGS's 30k schedule, for a GPU)."""
+        """``quick`` (minutes on 2 CPU cores, long side ~400 px), ``standard`` (~1000 px), or ``paper`` (3DGS's 30k
+        schedule at full resolution, for a GPU)."""
         if name == "quick":
-            cfg = cls(preset="quick", iterations=3000, downscale=8, sh_interval=300, random_init_points=5000,
+            cfg = cls(preset="quick", iterations=3000, downscale=8, max_side=400, sh_interval=300,
+                      random_init_points=5000,
                       densify=DensifyConfig(start=150, stop=1500, interval=100, reset_every=900,
                                             max_gaussians=60_000))
         elif name == "standard":
-            cfg = cls(preset="standard", iterations=7000, downscale=4, sh_interval=1000,
+            cfg = cls(preset="standard", iterations=7000, downscale=4, max_side=1000, sh_interval=1000,
                       random_init_points=30_000,
                       densify=DensifyConfig(start=500, stop=3500, interval=100, reset_every=3000,
                                             max_gaussians=300_000))
         elif name == "paper":
-            cfg = cls(preset="paper", iterations=30_000, downscale=1, sh_interval=1000,
+            cfg = cls(preset="paper", iterations=30_000, downscale=1, max_side=None, sh_interval=1000,
                       random_init_points=100_000,
                       densify=DensifyConfig(start=500, stop=15_000, interval=100, reset_every=3000))
         else:
@@ -126,6 +132,7 @@ class ReconstructConfig:
             raise ValueError(f"unknown device {self.device!r}; expected one of {', '.join(DEVICES)}")
         d = self.densify
         checks = [("iterations", self.iterations >= 1, "at least 1"), ("downscale", self.downscale >= 1, "at least 1"),
+                  ("max_side", self.max_side is None or self.max_side >= 16, "at least 16 (or None)"),
                   ("sh_degree", 0 <= self.sh_degree <= 3, "0..3"), ("sh_interval", self.sh_interval >= 1, "at least 1"),
                   *[(n, getattr(self, n) > 0, "positive") for n in
                     ("lr_means_init", "lr_means_final", "lr_sh0", "lr_shN", "lr_opacity", "lr_scales", "lr_quats")],
