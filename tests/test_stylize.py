@@ -279,6 +279,7 @@ def test_cli_writes_ply_renders_and_report(tmp_path, tiny, vgg, capsys):
     assert report["iterations"] == 4 and report["num_views"] == 4
     assert len(list((out / "renders").glob("*.png"))) == 4  # this run's views only
     assert (out / "renders" / "notes.txt").exists()
+    assert report["contact_sheet"] == "before_after.png" and (out / "before_after.png").is_file()
     assert 0 < report["utilisation"]["utilisation"] <= 1 and report["utilisation"]["column_entropy"] > 0
     assert {"rasterize", "vgg_forward", "backward", "sinkhorn"} <= {k.split("/")[-1] for k in report["time_s"]}
     assert report["style_distance"]["gram_end"] > 0

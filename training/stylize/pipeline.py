@@ -1,7 +1,9 @@
 """The whole ``splatstyler stylize`` job: read the model, the scene and the painting, stylize, write the outputs.
 
 Outputs (each written atomically, and only once stylization has finished, so an error leaves nothing half-made):
-OUT/point_cloud.ply, OUT/renders/NNN_<view>.png for every view of the scene, OUT/report.json.
+OUT/point_cloud.ply, OUT/renders/NNN_<view>.png for every view of the scene, OUT/report.json, and
+OUT/before_after.png: a contact sheet of ``SHEET_VIEWS`` evenly spaced views, the input model's render beside the
+stylized one, with the painting beside the first row.
 """
 
 from __future__ import annotations
@@ -15,6 +17,10 @@ import numpy as np
 
 from training.core.errors import InputError
 from training.stylize.trainer import StylizeConfig, Stylizer
+
+SHEET_VIEWS = 4
+SHEET_CELL = 360
+CONTACT_SHEET = "before_after.png"
 
 
 def choose_downscale(data: Path, max_side: int) -> int:
@@ -33,7 +39,7 @@ def stylize_to_folder(model: Path, data: Path, style: Path, out: Path, config: S
     """Run the job and return the report (also written to OUT/report.json). ``listener`` receives the stylizer's
     events (training/core/messages.py); ``log`` (a str -> None callable) gets one line describing the run.
     ``mask``: (N,) bool, stylize only those Gaussians (Stylizer's ``mask``)."""
-    from training.core.atomic_write import atomic_open
+    from training.core.atomic_write import atomic_open, check_output_dir, make_output_dir
     from training.scene.image_io import write_image
     from training.model.ply_io import read_ply, write_ply
     from training.scene.loader import load_scene
@@ -43,6 +49,7 @@ def stylize_to_folder(model: Path, data: Path, style: Path, out: Path, config: S
     t_start = time.perf_counter()
     if out.exists() and not out.is_dir():
         raise InputError(out, "output exists and is not a folder")
+    check_output_dir(out)
     style_image = load_style_image(style)  # first: a bad painting should not cost a scene load
     gaussians = read_ply(model)
     scene = load_scene(data, downscale=choose_downscale(data, config.render_max_side))
@@ -72,7 +79,7 @@ def stylize_to_folder(model: Path, data: Path, style: Path, out: Path, config: S
 
     t0 = time.perf_counter()
     renders = stylizer.render_views()
-    out.mkdir(parents=True, exist_ok=True)
+    make_output_dir(out)
     write_ply(out / "point_cloud.ply", stylizer.stylized_gaussians())
     render_names = []
     for pos, ((img, _), cam) in enumerate(zip(renders, stylizer.cameras)):
@@ -83,6 +90,7 @@ def stylize_to_folder(model: Path, data: Path, style: Path, out: Path, config: S
     for stale in (out / "renders").glob("[0-9][0-9][0-9]_*.png"):
         if stale.name not in render_names:
             stale.unlink()
+    write_image(out / CONTACT_SHEET, before_after_sheet(stylizer, renders, style_image))
     stylizer.times.add("write_outputs", time.perf_counter() - t0)
 
     last = stylizer.history[-1] if stylizer.history else None
@@ -117,11 +125,25 @@ def stylize_to_folder(model: Path, data: Path, style: Path, out: Path, config: S
         "time_s": {"load_inputs": t_loaded - t_start, **stylizer.times.totals,
                    "stylize_loop": stylize_seconds, "total": time.perf_counter() - t_start},
         "renders": render_names,
+        "contact_sheet": CONTACT_SHEET,
     }
     with atomic_open(out / "report.json", "w") as f:
         json.dump(_jsonable(report), f, indent=2)
         f.write("\n")
     return report
+
+
+def before_after_sheet(stylizer: Stylizer, renders: list, style_image: np.ndarray) -> np.ndarray:
+    """Evenly spaced views, one row each: the input model's render | the stylized render; the painting ends the
+    first row, so the sheet alone shows what the stylization aimed at."""
+    from training.scene.image_grid import grid, shrink_to
+
+    n = len(stylizer.cameras)
+    picks = sorted({round(k * (n - 1) / max(1, SHEET_VIEWS - 1)) for k in range(min(SHEET_VIEWS, n))})
+    before = stylizer.render_views([stylizer.cameras[i] for i in picks], sh=stylizer.original_sh)
+    rows = [[shrink_to(b, SHEET_CELL), shrink_to(renders[i][0], SHEET_CELL)] for (b, _), i in zip(before, picks)]
+    rows[0].append(shrink_to(style_image, SHEET_CELL))
+    return grid(rows)
 
 
 def _jsonable(value: Any) -> Any:

@@ -17,6 +17,26 @@ import torch.nn.functional as F
 from training.core.errors import InputError
 
 MIN_STYLE_SIDE = 64  # below this, relu3 features (1/4 resolution, then halved) are a handful of vectors
+FLOAT_FORMATS = (".exr", ".hdr", ".tif", ".tiff", ".pfm")  # the ones that can hold NaN and inf
+
+
+def _nonfinite_pixels(path: Path) -> int:
+    """Pixels with a NaN or infinite channel in a float image file. The reader maps them to 0 (black) for the
+    scenes' photos; a painting made of them would be stylized toward black without a word, so we look first."""
+    import OpenImageIO as oiio
+
+    inp = oiio.ImageInput.open(str(path))
+    if inp is None:
+        return 0  # the reader below reports the file's real problem
+    try:
+        spec = inp.spec()
+        data = inp.read_image(0, 0, 0, spec.nchannels, "float")
+    finally:
+        inp.close()
+    if data is None:
+        return 0
+    data = np.asarray(data, dtype=np.float32).reshape(spec.height, spec.width, spec.nchannels)
+    return int((~np.isfinite(data)).any(axis=2).sum())
 
 
 def check_style_array(image: np.ndarray, path: str | Path | None = None) -> np.ndarray:
@@ -31,7 +51,13 @@ def check_style_array(image: np.ndarray, path: str | Path | None = None) -> np.n
     arr = arr[..., :3]
     if np.issubdtype(arr.dtype, np.integer):
         arr = arr.astype(np.float64) / float(np.iinfo(arr.dtype).max)
-    arr = np.ascontiguousarray(np.clip(np.nan_to_num(arr.astype(np.float32), nan=0.0), 0.0, 1.0))
+    bad = ~np.isfinite(arr)
+    if bad.any():
+        # zeroing them would stylize toward a black painting without a word (an EXR with NaN or inf pixels)
+        n = int(bad.any(axis=2).sum())
+        raise InputError(path, f"style image has {n} pixels that are NaN or infinite; give a painting with "
+                               "finite colours (e.g. an 8-bit PNG or JPEG)")
+    arr = np.ascontiguousarray(np.clip(arr.astype(np.float32), 0.0, 1.0))
     h, w = arr.shape[:2]
     if min(h, w) < MIN_STYLE_SIDE:
         raise InputError(path, f"style image is only {w}x{h} pixels; at least {MIN_STYLE_SIDE} pixels on each "
@@ -46,7 +72,11 @@ def load_style_image(path: str | Path) -> np.ndarray:
     path = Path(path)
     if path.is_dir():
         raise InputError(path, "style image is a folder, expected an image file")
-    return check_style_array(read_image(path), path)
+    image = read_image(path)  # first: a missing or corrupt file gets the reader's message
+    if path.suffix.lower() in FLOAT_FORMATS and (n := _nonfinite_pixels(path)):
+        raise InputError(path, f"style image has {n} pixels that are NaN or infinite; give a painting with "
+                               "finite colours (e.g. an 8-bit PNG or JPEG)")
+    return check_style_array(image, path)
 
 
 def style_for_render(style: np.ndarray, render_long_side: int) -> torch.Tensor:
