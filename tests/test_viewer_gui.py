@@ -285,6 +285,7 @@ Path(os.environ["RESULT"]).write_text(json.dumps(found))
 
     assert found["error"] == "", found["error"]
     assert found["keyframes"] == 32
-    frames = list(imageio.get_reader(tmp_path / "path.mp4"))
+    with imageio.get_reader(str(tmp_path / "path.mp4"), format="FFMPEG") as reader:
+        frames = [np.asarray(frame) for frame in reader]
     assert len(frames) == 12 and frames[0].shape == (64, 96, 3)
     assert float(np.std(frames[0])) > 2.0  # the scene, not a blank frame

@@ -16,6 +16,7 @@ from typing import Any
 
 import numpy as np
 
+from app.viewer.runs import RunsMixin
 from app.viewer.session import LiveSession, SessionMessage
 from training.core.messages import ModelSnapshot, TrainerEvent
 
@@ -50,7 +51,7 @@ def snapshot_of(gaussians, version: int = 0) -> ModelSnapshot:
                          frozen_array(g.rotations), frozen_array(g.opacities), frozen_array(g.sh), g.sh_degree)
 
 
-class ViewerApp:
+class ViewerApp(RunsMixin):
     def __init__(self, paths: Paths | None = None, start: str | None = None, preset: str = "quick",
                  recon_iters: int | None = None, stylize_overrides: dict | None = None,
                  downscale: int | None = None):
@@ -263,92 +264,6 @@ class ViewerApp:
         self.photo_index = index
         self.view.dirty = True
 
-    # ------------------------------------------------------------------ runs
-    def out_dir(self) -> Path:
-        return Path(self.paths.out)
-
-    def start_reconstruction(self, then_stylize: bool = False) -> None:
-        from app.viewer.stages import reconstruct_stage, stylize_stage
-
-        if not self.paths.data:
-            raise ValueError("open a dataset first (COLMAP folder or transforms.json)")
-        overrides = {} if self.recon_iters is None else {"iterations": int(self.recon_iters)}
-        stages = [reconstruct_stage(self.paths.data, self.out_dir() / "reconstruction", preset=self.preset,
-                                    downscale=self.downscale, **overrides)]
-        if then_stylize:
-            if self.style_image is None:
-                raise ValueError("open a painting first")
-            stages.append(stylize_stage(self.paths.data, self.paths.style, self.out_dir() / "stylized",
-                                        config=self._stylize_config_copy()))
-        self.original = None
-        self.error = ""
-        self.session.start(stages)
-
-    def start_stylization(self) -> None:
-        from app.viewer.stages import stylize_stage
-
-        if not self.paths.data:
-            raise ValueError("open the dataset the model was reconstructed from")
-        if self.style_image is None:
-            raise ValueError("open a painting first")
-        model = self.paths.model or None
-        if model is None:
-            raise ValueError("open a model (PLY) or reconstruct first")
-        if self.edited():
-            from training.model.ply_io import write_ply
-
-            # the stylization starts from what the user sees: the model after the deletes and crops
-            model = self.out_dir() / "edited_model.ply"
-            model.parent.mkdir(parents=True, exist_ok=True)
-            write_ply(model, self.edited_gaussians())
-        self.original = self.static_model
-        self.error = ""
-        self.session.start([stylize_stage(self.paths.data, self.paths.style, self.out_dir() / "stylized",
-                                          config=self._stylize_config_copy(), model=model,
-                                          mask=self.region_mask())])
-
-    def region_mask(self) -> np.ndarray | None:
-        """The Gaussians a stylization may change, over the edited model (None: all)."""
-        if self.style_region == "all" or self.editor is None:
-            return None
-        return self.editor.selected.copy() if self.style_region == "selection" else ~self.editor.selected
-
-    def set_style_region(self, region: str) -> None:
-        """Which Gaussians the stylization changes; a running stylizer takes it at its next step."""
-        self.style_region = region
-        trainer = self.session.trainer
-        if self._stage == "stylize" and trainer is not None and hasattr(trainer, "set_mask"):
-            mask = self.region_mask()
-            if mask is not None and len(mask) != len(trainer.gaussians):
-                raise ValueError("the selection belongs to another model than the one being stylized")
-            trainer.set_mask(mask)
-
-    def _stylize_config_copy(self):
-        from dataclasses import replace
-
-        return replace(self.stylize_config)
-
-    def set_stylize(self, **changes: Any) -> None:
-        """A slider moved: to the running stylizer (at its next step), and into the config of the next run."""
-        from dataclasses import replace
-
-        trainer = self.session.trainer
-        if self._stage == "stylize" and self.session.running and trainer is not None:
-            refusal = self.session.update_config(**changes)
-            if refusal:
-                self.fail(refusal)
-                return
-        candidate = replace(self.stylize_config, **changes)
-        try:
-            candidate.validate()
-        except ValueError as exc:
-            self.fail(str(exc))
-            return
-        self.stylize_config = candidate
-        if any(k in changes for k in ("view_order", "virtual_views", "seed")):
-            self.order_preview = None
-            self.update_overlays()
-
     # ------------------------------------------------------------------ per frame
     def sync(self) -> None:
         """Drain the session's news and take a new snapshot when one is due."""
@@ -432,32 +347,6 @@ class ViewerApp:
             parts.append(polyline(line, (1.0, 0.3, 0.9, 0.9)))  # the video's camera path, magenta
         self.view.overlays = Lines.join(parts) if parts else None
         self.view.dirty = True
-
-    def trajectory(self) -> list[tuple[int, np.ndarray, bool]]:
-        """(source camera index, centre, is virtual) in optimisation order: the running stylizer's, or the order
-        the next stylization would follow."""
-        trainer = self.session.trainer
-        if self._stage == "stylize" and trainer is not None and hasattr(trainer, "trajectory"):
-            return [(item.source_index, item.camera.center, item.is_virtual) for item in trainer.trajectory]
-        if not self.scene.cameras:
-            return []
-        if self.order_preview is None:
-            from training.stylize.view_order import view_order
-            from training.stylize.virtual_views import trajectory
-
-            cfg = self.stylize_config
-            cams = self.scene.cameras
-            order = view_order(cams, cfg.view_order, seed=cfg.seed, extent=_span([c.center for c in cams]) / 2)
-            self.order_preview = [(item.source_index, item.camera.center, item.is_virtual)
-                                  for item in trajectory(cams, order, cfg.virtual_views)]
-        return self.order_preview
-
-    def current_view_index(self) -> int | None:
-        """Trajectory position of the view the stylizer optimises now (None when no stylizer runs)."""
-        trainer = self.session.trainer
-        if self._stage == "stylize" and trainer is not None and hasattr(trainer, "trajectory_position"):
-            return trainer.trajectory_position
-        return None
 
     # ------------------------------------------------------------------ runner callbacks
     def post_init(self) -> None:

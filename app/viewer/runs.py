@@ -1,0 +1,125 @@
+"""The viewer's runs: starting a reconstruction, a stylization or both in the live session, the stylization settings
+the panels edit (live where the running stylizer accepts them), the region it may change, and the view order it
+follows. Mixed into ``ViewerApp``; every method runs on the UI thread."""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+
+class RunsMixin:
+    def out_dir(self) -> Path:
+        return Path(self.paths.out)
+
+    def start_reconstruction(self, then_stylize: bool = False) -> None:
+        from app.viewer.stages import reconstruct_stage, stylize_stage
+
+        if not self.paths.data:
+            raise ValueError("open a dataset first (COLMAP folder or transforms.json)")
+        overrides = {} if self.recon_iters is None else {"iterations": int(self.recon_iters)}
+        stages = [reconstruct_stage(self.paths.data, self.out_dir() / "reconstruction", preset=self.preset,
+                                    downscale=self.downscale, **overrides)]
+        if then_stylize:
+            if self.style_image is None:
+                raise ValueError("open a painting first")
+            stages.append(stylize_stage(self.paths.data, self.paths.style, self.out_dir() / "stylized",
+                                        config=self._stylize_config_copy()))
+        self.original = None
+        self.error = ""
+        self.session.start(stages)
+
+    def start_stylization(self) -> None:
+        from app.viewer.stages import stylize_stage
+
+        if not self.paths.data:
+            raise ValueError("open the dataset the model was reconstructed from")
+        if self.style_image is None:
+            raise ValueError("open a painting first")
+        model = self.paths.model or None
+        if model is None:
+            raise ValueError("open a model (PLY) or reconstruct first")
+        if self.edited():
+            from training.model.ply_io import write_ply
+
+            # the stylization starts from what the user sees: the model after the deletes and crops
+            model = self.out_dir() / "edited_model.ply"
+            model.parent.mkdir(parents=True, exist_ok=True)
+            write_ply(model, self.edited_gaussians())
+        self.original = self.static_model
+        self.error = ""
+        self.session.start([stylize_stage(self.paths.data, self.paths.style, self.out_dir() / "stylized",
+                                          config=self._stylize_config_copy(), model=model,
+                                          mask=self.region_mask())])
+
+    def region_mask(self) -> np.ndarray | None:
+        """The Gaussians a stylization may change, over the edited model (None: all)."""
+        if self.style_region == "all" or self.editor is None:
+            return None
+        return self.editor.selected.copy() if self.style_region == "selection" else ~self.editor.selected
+
+    def set_style_region(self, region: str) -> None:
+        """Which Gaussians the stylization changes; a running stylizer takes it at its next step."""
+        self.style_region = region
+        trainer = self.session.trainer
+        if self._stage == "stylize" and trainer is not None and hasattr(trainer, "set_mask"):
+            mask = self.region_mask()
+            if mask is not None and len(mask) != len(trainer.gaussians):
+                raise ValueError("the selection belongs to another model than the one being stylized")
+            trainer.set_mask(mask)
+
+    def _stylize_config_copy(self):
+        from dataclasses import replace
+
+        return replace(self.stylize_config)
+
+    def set_stylize(self, **changes: Any) -> None:
+        """A slider moved: to the running stylizer (at its next step), and into the config of the next run."""
+        from dataclasses import replace
+
+        trainer = self.session.trainer
+        if self._stage == "stylize" and self.session.running and trainer is not None:
+            refusal = self.session.update_config(**changes)
+            if refusal:
+                self.fail(refusal)
+                return
+        candidate = replace(self.stylize_config, **changes)
+        try:
+            candidate.validate()
+        except ValueError as exc:
+            self.fail(str(exc))
+            return
+        self.stylize_config = candidate
+        if any(k in changes for k in ("view_order", "virtual_views", "seed")):
+            self.order_preview = None
+            self.update_overlays()
+
+    def trajectory(self) -> list[tuple[int, np.ndarray, bool]]:
+        """(source camera index, centre, is virtual) in optimisation order: the running stylizer's, or the order
+        the next stylization would follow."""
+        trainer = self.session.trainer
+        if self._stage == "stylize" and trainer is not None and hasattr(trainer, "trajectory"):
+            return [(item.source_index, item.camera.center, item.is_virtual) for item in trainer.trajectory]
+        if not self.scene.cameras:
+            return []
+        if self.order_preview is None:
+            from training.scene.scene import camera_normalization
+            from training.stylize.view_order import view_order
+            from training.stylize.virtual_views import trajectory
+
+            cfg = self.stylize_config
+            cams = self.scene.cameras
+            # the extent the stylizer passes (the scene's), so the preview is the order the run will follow
+            order = view_order(cams, cfg.view_order, seed=cfg.seed, extent=camera_normalization(cams)[1])
+            self.order_preview = [(item.source_index, item.camera.center, item.is_virtual)
+                                  for item in trajectory(cams, order, cfg.virtual_views)]
+        return self.order_preview
+
+    def current_view_index(self) -> int | None:
+        """Trajectory position of the view the stylizer optimises now (None when no stylizer runs)."""
+        trainer = self.session.trainer
+        if self._stage == "stylize" and trainer is not None and hasattr(trainer, "trajectory_position"):
+            return trainer.trajectory_position
+        return None
