@@ -64,7 +64,7 @@ def frame_writer(out: Path, width: int, height: int, fps: float) -> Iterator[Cal
             stale.unlink()
 
 
-def render_frames(renderer, cameras, width: int, height: int, *, split: float | None = None,
+def render_frames(renderer, cameras, width: int, height: int, *, split: float | None = None, split_left: int = 0,
                   background=(0.0, 0.0, 0.0), max_sh_degree: int = 3, cancel=None) -> Iterator[np.ndarray]:
     """(H, W, 3) uint8 frames of ``cameras`` (camera-like objects at ``width`` x ``height``) from ``renderer``'s
     model in slot 0 (or slots 0 | 1 split at ``split``); ``cancel()`` is asked before each frame (Cancelled)."""
@@ -75,7 +75,7 @@ def render_frames(renderer, cameras, width: int, height: int, *, split: float | 
         for cam in cameras:
             check_cancel(cancel)
             renderer.render(view(cam), off.fbo, mode="color", background=background, max_sh_degree=max_sh_degree,
-                            split=split)
+                            split=split, split_left=split_left)
             yield off.read()
     finally:
         off.release()

@@ -234,10 +234,12 @@ class SplatRenderer:
     def splat_pass(self, camera, mode: str = "color", *, slot: int = 0, split: float | None = None,
                    max_sh_degree: int = 3, scale: float = 1.0, near: float = C.NEAR_PLANE,
                    far: float = C.FAR_PLANE, eps2d: float = C.EPS2D, tint=(1.0, 0.35, 0.1, 0.6),
-                   point_size: float = 2.0, outline_sigma: float = 2.0, lod: float = 1.0) -> FrameInfo:
+                   point_size: float = 2.0, outline_sigma: float = 2.0, lod: float = 1.0,
+                   split_left: int = 0) -> FrameInfo:
         """Composite into the accumulation target only (``render`` and ``render_arrays`` call this). ``lod`` < 1
         draws only that fraction of the Gaussians, the most important (opacity x footprint), in depth order: a
-        preview while the camera moves, where software GL pays per splat."""
+        preview while the camera moves, where software GL pays per splat. ``split_left``: the slot shown left of
+        a split's divider (0 or 1; the other is on the right)."""
         if mode not in MODES:
             raise ValueError(f"unknown render mode {mode!r}; expected one of {', '.join(MODES)}")
         v = view(camera)
@@ -258,7 +260,8 @@ class SplatRenderer:
             parts = [(slot, None)]
         else:
             x = int(round(np.clip(split, 0.0, 1.0) * v.width))
-            parts = [(0, (0, 0, x, v.height)), (1, (x, 0, v.width - x, v.height))]
+            left = int(split_left)
+            parts = [(left, (0, 0, x, v.height)), (1 - left, (x, 0, v.width - x, v.height))]
         forward = v.forward
         info = FrameInfo(0, False, 0.0, 0.0, (v.width, v.height))
         try:

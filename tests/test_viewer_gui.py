@@ -95,6 +95,12 @@ def run(app, test):
                 add_ons_params=immapp.AddOnsParams(with_implot=True))
 
 
+def open_window(ctx, name):
+    # the Edit and Camera path panels start collapsed, as a user first sees them
+    ctx.window_collapse("//" + name, False)
+    ctx.set_ref(name)
+
+
 def wait(ctx, condition, seconds, what):
     t0 = time.time()
     while not condition():
@@ -132,7 +138,7 @@ def test(ctx):
     found["drawn_order"] = list(app.drawn_order)
     found["trainer_order"] = [item.source_index for item in trainer.trajectory if not item.is_virtual]
     found["capacity_shape"] = list(trainer.capacity_map().shape)
-    ctx.set_ref("Edit")
+    open_window(ctx, "Edit")
     ctx.item_click("Select in sphere")
     ctx.set_ref("Style")
     ctx.combo_click("stylize/only the selection")
@@ -218,7 +224,7 @@ def test(ctx):
     lo = np.percentile(means, 20, axis=0)
     hi = np.percentile(means, 70, axis=0)
     found["box"] = [lo.tolist(), hi.tolist()]
-    ctx.set_ref("Edit")
+    open_window(ctx, "Edit")
     for axis in range(3):  # typed into the panel's box fields, as a user does
         ctx.item_input_value(f"box min/$${{axis}}", float(lo[axis]))
         ctx.item_input_value(f"box max/$${{axis}}", float(hi[axis]))
@@ -265,7 +271,7 @@ def test_dataset_trajectory_renders_to_a_video(demo_scene, tmp_path):
 app = ViewerApp(Paths(model={str(model)!r}, data={str(scene_dir)!r}, out=str(OUT / "out")))
 
 def test(ctx):
-    ctx.set_ref("Camera path")
+    open_window(ctx, "Camera path")
     ctx.item_click("Dataset trajectory")
     found["keyframes"] = len(app.path_keys)
     ctx.item_input_value("seconds", 1.0)

@@ -83,6 +83,7 @@ def draw_gesture(app) -> None:
 def edit_panel(app) -> None:
     imgui.set_next_window_pos(imgui.ImVec2(400, 10), imgui.Cond_.first_use_ever)
     imgui.set_next_window_size(imgui.ImVec2(330, 430), imgui.Cond_.first_use_ever)
+    imgui.set_next_window_collapsed(True, imgui.Cond_.first_use_ever)  # opened when needed: the view comes first
     expanded, _ = imgui.begin("Edit")
     if expanded:
         _edit_contents(app)

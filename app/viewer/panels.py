@@ -102,7 +102,7 @@ def scene_panel(app) -> None:
             s.max_sh_degree = deg
             app.view.dirty = True
         imgui.begin_disabled(app.original is None)
-        changed, s.split = imgui.checkbox("split: original | stylized", s.split)
+        changed, s.split = imgui.checkbox("split: before | after stylization", s.split)
         app.view.dirty |= changed
         if s.split:
             changed, s.split_position = imgui.slider_float("divider", s.split_position, 0.0, 1.0)
@@ -389,17 +389,19 @@ def painting(app) -> None:
 
 
 def heatmap(mass: np.ndarray) -> np.ndarray:
-    """(h, w) column mass -> (h, w, 4) RGBA: transparent where a feature gets its fair share or less, rising to
-    opaque red-yellow where it gets many times that (log scale), so overused patterns stand out."""
+    """(h, w) column mass -> (h, w, 4) RGBA over the painting: red to yellow where a style feature gets more than its
+    fair share (1 / count; log scale up to the map's own maximum, so the most used patterns always stand out),
+    blue where it gets less (fully blue: unused), clear at the fair share. Tau's effect is the balance of the two."""
     fair = 1.0 / max(mass.size, 1)
-    ratio = np.log2(np.maximum(mass / fair, 1e-6))  # 0 = fair share
-    t = np.clip(ratio / 4.0, 0.0, 1.0)  # 16x the fair share saturates
-    unused = mass < 0.1 * fair
+    ratio = mass / fair
     rgba = np.zeros(mass.shape + (4,), np.float32)
-    rgba[..., 0] = 1.0
-    rgba[..., 1] = t
-    rgba[..., 3] = 0.75 * t
-    rgba[unused] = (0.1, 0.3, 1.0, 0.45)  # patterns the plan leaves unused, in blue
+    over = ratio > 1.0
+    top = max(float(np.log2(max(float(ratio.max()), 1.0))), 0.5)
+    t = np.clip(np.log2(np.maximum(ratio, 1.0)) / top, 0.0, 1.0)
+    rgba[..., 0] = np.where(over, 1.0, 0.1)
+    rgba[..., 1] = np.where(over, t, 0.35)
+    rgba[..., 2] = np.where(over, 0.0, 1.0)
+    rgba[..., 3] = np.where(over, 0.75 * t, 0.6 * np.clip(1.0 - ratio, 0.0, 1.0))
     return rgba
 
 

@@ -33,7 +33,7 @@ class VideoJob:
         self._write = self._stack.enter_context(frame_writer(out, width, height, path.fps))
         renderer = app.view.renderer
         self._frames = render_frames(renderer, self.cameras, width, height,
-                                     split=0.5 if split else None,
+                                     split=0.5 if split else None, split_left=1,
                                      background=app.view.settings.background,
                                      max_sh_degree=app.view.settings.max_sh_degree)
         self.finished = False
@@ -65,6 +65,7 @@ class VideoJob:
 def path_panel(app) -> None:
     imgui.set_next_window_pos(imgui.ImVec2(400, 450), imgui.Cond_.first_use_ever)
     imgui.set_next_window_size(imgui.ImVec2(330, 340), imgui.Cond_.first_use_ever)
+    imgui.set_next_window_collapsed(True, imgui.Cond_.first_use_ever)
     expanded, _ = imgui.begin("Camera path")
     if expanded:
         _contents(app)

@@ -181,7 +181,8 @@ class View3D:
             photo = None if s.photo == "off" else s.photo
             self.renderer.render(cam, fbo, mode=s.mode, background=s.background, split=split,
                                  max_sh_degree=s.max_sh_degree, scale=scale, photo=photo,
-                                 photo_alpha=s.photo_alpha, overlays=self.overlays, lod=lod)
+                                 photo_alpha=s.photo_alpha, overlays=self.overlays, lod=lod,
+                                 split_left=1)  # slot 1 holds the model before stylization: before | after
         gl_direct.finish(self.ctx)
         self.last_frame_s = time.perf_counter() - t0
         if training:
