@@ -120,7 +120,8 @@ def run(args) -> int:
     from training.core.atomic_write import atomic_open
     from training.reconstruct.metrics import constant_color_psnr
     from training.reconstruct.resolution import training_downscale
-    from training.reconstruct.time_estimate import estimate_seconds, format_duration, time_first_steps
+    from training.reconstruct.time_estimate import (TIMED_STEPS, estimate_seconds, format_duration,
+                                                      time_first_steps)
     from training.core.atomic_write import check_output_dir, make_output_dir
 
     _one_line_warnings()
@@ -185,8 +186,8 @@ def run(args) -> int:
             estimate = estimate_seconds(per_step, trainer.total_iters - trainer.step_count)
             report_extra["estimated_seconds"] = (time.perf_counter() - t_start) + estimate
             print(f"estimated time: about {format_duration(report_extra['estimated_seconds'])} on this machine for "
-                  f"{trainer.total_iters - start_step} iterations ({1000 * per_step:.0f} ms per step now, "
-                  f"{len(trainer.gaussians)} Gaussians; steps slow down as densification adds Gaussians)",
+                  f"{trainer.total_iters - start_step} iterations (from {TIMED_STEPS} timed steps at "
+                  f"{1000 * per_step:.0f} ms each; other jobs on the machine make it longer)",
                   file=sys.stderr, flush=True)
         bar = ProgressBar(initial=trainer.step_count, desc="reconstruct", disable=args.no_progress,
                           postfix={"loss": "loss", "psnr": "psnr", "num_gaussians": "n"})
