@@ -99,6 +99,7 @@ def open_window(ctx, name):
     # the Edit and Camera path panels start collapsed, as a user first sees them
     ctx.window_collapse("//" + name, False)
     ctx.set_ref(name)
+    ctx.yield_(3)  # let the opened window's layout settle before items are aimed at
 
 
 def wait(ctx, condition, seconds, what):
@@ -115,7 +116,7 @@ def test_live_stylization_tau_slider_view_order_and_pause(demo_scene, tmp_path):
     scene_dir, style, model = demo_scene
     found = run_gui(PRELUDE + f"""
 app = ViewerApp(Paths(model={str(model)!r}, data={str(scene_dir)!r}, style={str(style)!r}, out=str(OUT / "out")),
-                start="stylize", stylize_overrides={{"max_side": 64, "iters_per_view": 3}})
+                start="stylize", stylize_overrides={{"max_side": 64, "iters_per_view": 30}})
 
 def test(ctx):
     wait(ctx, lambda: app.session.status().state == "running" and app.session.status().step >= 2, 180,

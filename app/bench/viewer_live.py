@@ -78,7 +78,7 @@ def _window(phase: str, seconds: float, warmup: int) -> dict:
         if phase == "window_moving" and app.view.camera is not None:
             app.view.camera.orbit(4.0, 0.0)  # a drag of 4 px every frame, as continuous mouse input
             app.view.moved()
-            hello_imgui.request_refresh()  # input events keep the runner from idling; these calls do not
+            app.note_input()  # what a real mouse event does to the frame pacing
         if state["start"] is None:
             if status.state == "running" and status.step >= warmup:
                 state.update(start=status.step, t0=now, draws0=app.view.frames_drawn, frames=app.frames)
@@ -131,7 +131,7 @@ def _latency(seconds: float, warmup: int, n: int = 100_000) -> dict:
         elif state["pending"] is None and now - state["last"] > 0.5:
             app.view.camera.orbit(6.0, 0.0)
             app.view.moved()
-            hello_imgui.request_refresh()
+            app.note_input()
             state["pending"] = (now, app.view.frames_drawn)
 
     def background():

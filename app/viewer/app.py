@@ -20,8 +20,10 @@ from app.viewer.runs import RunsMixin
 from app.viewer.session import LiveSession, SessionMessage
 from training.core.messages import ModelSnapshot, TrainerEvent
 
-IDLE_FPS = 4.0  # the runner's frame rate while nothing happens: each idle frame costs the trainer GIL time
-MAX_FPS = 30.0
+IDLE_FPS = 4.0  # frames per second while nothing happens: each frame costs a running trainer CPU time
+MAX_FPS = 30.0  # while the user acts
+MAX_FPS_TRAINING = 12.0  # while the user acts beside a running trainer (each frame is CPU the trainer loses)
+ACTIVE_AFTER_INPUT_S = 0.5
 
 
 @dataclass
@@ -292,10 +294,14 @@ class ViewerApp(RunsMixin):
         if editing_live and (not self.session.running or self.editor is None):
             self.live_editing = editing_live = False
         if (self.session.trainer is not None and now - self._last_snapshot_at >= self.refresh_s
-                and (not self.session.running or self.view.may_draw_now())):
+                and (not self.training_now() or self.view.may_draw_now())):
             snap = self.session.snapshot()
             self._last_snapshot_at = now
-            if snap is not None and self.view.show(snap, 0):
+            t0 = time.perf_counter()
+            shown = snap is not None and self.view.show(snap, 0)
+            if self.training_now():
+                self.view.charge(time.perf_counter() - t0)
+            if shown:
                 self._describe(snap)
                 if editing_live and len(snap) == self.editor.count:
                     self.view.renderer.set_flags(self.editor.flags(), 0)
@@ -317,6 +323,10 @@ class ViewerApp(RunsMixin):
             self._describe(self.editor.model)
             self._editor_shown = self.editor.version
             self.view.dirty = True
+
+    def training_now(self) -> bool:
+        """A trainer is stepping (not paused, not loading): the view shares the CPU with it."""
+        return self.session.running and self.session.status().state == "running"
 
     def _current_model(self) -> ModelSnapshot | None:
         trainer = self.session.trainer
@@ -398,7 +408,7 @@ class ViewerApp(RunsMixin):
         io = imgui.get_io()
         size = (int(io.display_size.x * io.display_framebuffer_scale.x),
                 int(io.display_size.y * io.display_framebuffer_scale.y))
-        self.view.draw(size, split_ready=self.original is not None, training=self.session.running)
+        self.view.draw(size, split_ready=self.original is not None, training=self.training_now())
         screen = self.ctx.detect_framebuffer()
         self.view.blit(screen)
 
@@ -435,9 +445,35 @@ class ViewerApp(RunsMixin):
                 elif imgui.is_key_pressed(imgui.Key.delete):
                     self.guarded("delete", self.editor.delete)
         panels.draw_all(self)
-        if self.view.needs_draw(self.session.running) or self.view.flying:
-            # a camera in motion (a held key sends no new events) or a picture still to draw: next frame now
-            hello_imgui.request_refresh()
+        io = imgui.get_io()
+        training = self.training_now()
+        drawable = self.view.needs_draw(training) and (not training or self.view.may_draw_now())
+        if (io.mouse_delta.x or io.mouse_delta.y or io.mouse_wheel or imgui.is_any_item_active()
+                or any(imgui.is_mouse_down(b) for b in range(3)) or drawable
+                or self.view.flying or (self.video_job is not None and not self.video_job.finished)):
+            self.note_input()
+
+    def note_input(self) -> None:
+        """Something happened that the next frames should answer promptly (input, a picture to draw)."""
+        self._active_at = time.perf_counter()
+
+    def pace(self) -> None:
+        """Sleep out the rest of the frame: 30 frames/s while the user acts or something is being drawn, 4 when
+        nothing happens. Sleeping frees the CPU and the GIL for the trainer. (Hello ImGui's own idling either
+        never idled or spun a whole core on GLFW's null platform, measured; ours is the same on every platform.)"""
+        now = time.perf_counter()
+        active = now - getattr(self, "_active_at", 0.0) < ACTIVE_AFTER_INPUT_S
+        top = MAX_FPS_TRAINING if self.training_now() else MAX_FPS
+        wait = 1.0 / (top if active else IDLE_FPS) - (now - getattr(self, "_frame_start", 0.0))
+        if wait > 0:
+            if self._platform == "null":
+                time.sleep(wait)  # no input to wait for (and the null platform's event wait returns at once)
+            else:
+                # wait for input or the frame time, whichever comes first, without the GIL (pyGLFW is ctypes)
+                import glfw
+
+                glfw.wait_events_timeout(wait)
+        self._frame_start = time.perf_counter()
 
     def runner_params(self, title: str = "splatstyler", size=(1280, 800)):
         from imgui_bundle import hello_imgui
@@ -446,19 +482,12 @@ class ViewerApp(RunsMixin):
         rp.app_window_params.window_title = title
         rp.app_window_params.window_geometry.size = size
         rp.ini_disable = True
-        rp.fps_idling.enable_idling = True
-        rp.fps_idling.fps_idle = IDLE_FPS
-        # every frame holds the GIL for a while: cap the rate (the null platform has no vsync to do it) and
-        # idle soon after the last input
-        rp.fps_idling.fps_max = MAX_FPS
-        rp.fps_idling.time_active_after_last_event = 0.5
-        rp.fps_idling.vsync_to_monitor = False
-        # measured on GLFW's null platform: "auto" and "sleep" never idle (25 frames/s) or hang in its event
-        # wait, "early_return" idles at fps_idle; under X11 (Xvfb) "sleep" idled best
         from app.viewer.platform import choose_platform
 
-        mode = "early_return" if choose_platform() == "null" else "sleep"
-        rp.fps_idling.fps_idling_mode = getattr(hello_imgui.FpsIdlingMode, mode)
+        self._platform = choose_platform()
+        rp.fps_idling.enable_idling = False  # paced by ``pace`` instead
+        rp.fps_idling.vsync_to_monitor = False
+        rp.callbacks.after_swap = self.pace
         rp.imgui_window_params.default_imgui_window_type = hello_imgui.DefaultImGuiWindowType.no_default_window
         rp.callbacks.post_init = self.post_init
         rp.callbacks.before_exit = self.before_exit

@@ -22,9 +22,12 @@ def reconstruct_stage(data: str | Path, out: str | Path, preset: str = "quick", 
         from training.reconstruct.trainer import ReconstructConfig, Reconstructor
         from training.scene.loader import load_scene
 
+        from training.reconstruct.resolution import training_downscale
+
         cfg = ReconstructConfig.from_preset(preset, **overrides)
-        if downscale is not None:
-            cfg.downscale = int(downscale)
+        if downscale is not None:  # an explicit factor wins over the preset's target long side, as on the CLI
+            cfg.downscale, cfg.max_side = int(downscale), None
+        cfg.downscale = training_downscale(data, cfg.max_side, cfg.downscale)
         return Reconstructor(load_scene(data, downscale=cfg.downscale), cfg)
 
     def save(trainer, finished: bool, cancel) -> Path:

@@ -35,7 +35,7 @@ class RenderSettings:
     motion_scale: float = 0.5
     motion_lod: float = 1.0  # the fraction of the Gaussians (the most important) drawn while the camera moves
     training_scale: float = 1.0  # resolution of the still view while a trainer runs (it shares the CPU)
-    training_share: float = 0.5  # while a trainer runs, the view draws at most (1 - this) of the time
+    training_share: float = 0.85  # while a trainer runs, the view draws at most (1 - this) of the time
     settle_s: float = 0.25
 
 
@@ -149,15 +149,23 @@ class View3D:
         return self._fbo
 
     def needs_draw(self, training: bool = False) -> bool:
+        """Dirty, or the camera has settled after moving and the still picture is finer than the moving one. While
+        a trainer runs, the finer picture waits for the next model refresh (a full draw anyway): drawing it twice
+        would cost the trainer the time."""
         settled = time.perf_counter() - self._last_move > self.settings.settle_s
         s = self.settings
         still_scale = s.training_scale if training else 1.0
-        return self.dirty or (self._full_res_pending and settled
+        return self.dirty or (self._full_res_pending and settled and not training
                               and (still_scale != s.motion_scale or s.motion_lod < 1.0))
+
+    def charge(self, seconds: float) -> None:
+        """Count work done for the view outside ``draw`` (a model upload) against the drawing budget."""
+        self._budget -= seconds
 
     def draw(self, size: tuple[int, int], split_ready: bool, training: bool = False) -> bool:
         """Render into the offscreen target if needed; returns whether it drew."""
         if size[0] < 1 or size[1] < 1 or self.camera is None:
+            self.dirty = False  # nothing to show yet; placing a camera marks the view dirty again
             return False
         fbo = self._target(size)
         if training and not self.may_draw_now():
