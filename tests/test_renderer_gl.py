@@ -10,7 +10,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from renderer_gl import Lines, Offscreen, SplatRenderer, create_context, frustum, look_at, polyline, view
+from renderer_gl import Offscreen, SplatRenderer, create_context, frustum, look_at, polyline, view
 from tests.gl_scenes import BG, camera, psnr, reference_render, separated_grid
 
 ROOT = Path(__file__).resolve().parents[1]

@@ -413,7 +413,7 @@ class ViewerApp(RunsMixin):
         self.view.blit(screen)
 
     def gui(self) -> None:
-        from imgui_bundle import hello_imgui, imgui
+        from imgui_bundle import imgui
 
         from app.viewer import panels
 
