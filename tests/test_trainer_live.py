@@ -238,3 +238,22 @@ def test_stylize_keep_removes_gaussians_between_steps(tiny, vgg):
     assert s.snapshot().sh.shape[0] == keep.sum()
     with pytest.raises(ValueError, match="every Gaussian"):
         s.keep(np.zeros(len(after), dtype=bool))
+
+
+def test_reconstruct_keep_removes_gaussians_with_their_optimizer_state(scene):
+    trainer = Reconstructor(scene, recon_config(iterations=20))
+    for _ in range(3):
+        trainer.step()
+    before = trainer.snapshot()
+    n = len(before)
+    keep = np.ones(n, dtype=bool)
+    keep[1::4] = False
+    trainer.keep(keep)
+    after = trainer.snapshot()
+    assert len(after) == keep.sum() and after.geometry_version > before.geometry_version
+    assert np.array_equal(after.means, before.means[keep])
+    state = trainer.optimizer.state[trainer.gaussians.means]
+    assert state["exp_avg"].shape[0] == keep.sum()  # the moments went with their Gaussians
+    assert trainer.strategy.grad_accum.shape[0] == keep.sum()
+    result = trainer.step()  # trains on, densification statistics and all
+    assert result["num_gaussians"] == keep.sum() and not result["recovered"]

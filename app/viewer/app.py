@@ -183,16 +183,16 @@ class ViewerApp(RunsMixin):
         return self.source_gaussians.subset(torch.as_tensor(rows, dtype=torch.long))
 
     def edit_live(self) -> None:
-        """Select and delete in the model a running stylization is training; deletions reach it at its next step."""
+        """Select and delete in the model a running trainer trains; deletions reach it at its next step."""
         from app.viewer.selection import Editor
 
         trainer = self.session.trainer
         if trainer is None or not hasattr(trainer, "keep") or not self.session.running:
-            raise ValueError("no running stylization to edit (reconstructions are edited once saved)")
+            raise ValueError("no running trainer to edit")
         self.editor = Editor(trainer.snapshot(), on_keep=trainer.keep)
         self.source_gaussians = None
         self.live_editing = True
-        self.say("editing the running stylization's model: deletions and crops apply to it and cannot be undone")
+        self.say("editing the running trainer's model: deletions and crops apply to it and cannot be undone")
 
     def edited(self) -> bool:
         return self.editor is not None and (len(self.editor.index) != len(self.source_gaussians)
@@ -303,7 +303,15 @@ class ViewerApp(RunsMixin):
                 self.view.charge(time.perf_counter() - t0)
             if shown:
                 self._describe(snap)
-                if editing_live and len(snap) == self.editor.count:
+                if editing_live and len(snap) != self.editor.count:
+                    # densification changed the Gaussians under the selection: start again from the new model
+                    from app.viewer.selection import Editor
+
+                    self.editor = Editor(snap, on_keep=self.session.trainer.keep)
+                    self.say("the trainer changed its Gaussians: the selection was cleared")
+                elif editing_live:
+                    self.editor.model = snap  # positions move while reconstructing: select where they are now
+                if editing_live:
                     self.view.renderer.set_flags(self.editor.flags(), 0)
                 if self.view.camera is None:
                     self._place_camera()

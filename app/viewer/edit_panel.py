@@ -97,7 +97,7 @@ def _edit_contents(app) -> None:
         return
     if app.session.running and not getattr(app, "live_editing", False):
         imgui.text_colored(GREY, "a trainer is running: edits apply to the opened model")
-        if app.session.status().stage == "stylize" and imgui.button("Edit the running stylization"):
+        if imgui.button("Edit the running model"):
             app.guarded("edit", app.edit_live)
     imgui.text(f"{ed.count:,} Gaussians, {int(ed.selected.sum()):,} selected, {int(ed.hidden.sum()):,} hidden")
     changed, i = imgui.combo("tool", TOOLS.index(app.tool), list(TOOLS))

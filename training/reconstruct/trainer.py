@@ -26,15 +26,13 @@ from __future__ import annotations
 
 import copy
 import math
-import threading
 import time
 import warnings
 from dataclasses import asdict, dataclass, field, fields, replace
-from typing import Any
 
 import torch
 
-from training.core.messages import EventSource, ModelSnapshot, checked_config_changes, frozen_array
+from training.core.live_trainer import LiveTrainer
 
 from training.reconstruct.densify import PARAM_NAMES, DensifyConfig, DensifyStrategy
 from training.model.gaussians import Gaussians
@@ -180,8 +178,10 @@ def initial_gaussians(scene: Scene, cfg: ReconstructConfig) -> tuple[Gaussians, 
     return gaussians_random(scene, cfg.random_init_points, cfg.sh_degree, seed=cfg.seed), "random"
 
 
-class Reconstructor:
+class Reconstructor(LiveTrainer):
     """3DGS trainer. ``gaussians`` is the live model (leaf tensors that require grad); ``step()`` advances it."""
+
+    FIXED_AT_START = FIXED_AT_START
 
     def __init__(self, scene: Scene, config: ReconstructConfig, gaussians: Gaussians | None = None):
         from training.reconstruct.depth_targets import compute_depth_targets
@@ -223,13 +223,7 @@ class Reconstructor:
         self.last_timings: dict[str, float] = {}
         # Threads: step() runs on one; snapshot() and update_config() may come from another. The lock covers every
         # write to the model's tensors (optimizer step, densification, restore), so a snapshot is never torn.
-        self._model_lock = threading.Lock()
-        self._pending_config: ReconstructConfig | None = None
-        self._version = 0
-        self._last_view_snapshot: ModelSnapshot | None = None
-        self.events = EventSource("reconstruct")
-        self.add_listener = self.events.add_listener
-        self.remove_listener = self.events.remove_listener
+        self._init_live("reconstruction", "reconstruct")
         self._snapshot = self._take_snapshot()
 
     @property
@@ -240,29 +234,42 @@ class Reconstructor:
     def done(self) -> bool:
         return self.step_count >= self.total_iters
 
-    def update_config(self, **changes: Any) -> ReconstructConfig:
-        """Validate ``changes`` now (ValueError naming the setting) and apply them at the start of the next step;
-        any thread. Returns the config the next step will use."""
-        with self._model_lock:
-            new = checked_config_changes(self._pending_config or self.config, changes, FIXED_AT_START,
-                                         "reconstruction")
-            new.validate()
-            self._pending_config = new
-        return new
+    # ------------------------------------------------------------------------------- the viewer's copy, edits
+    def _snapshot_step(self) -> int:
+        return self.step_count
 
-    def snapshot(self) -> ModelSnapshot:
-        """A consistent copy of the model as a renderer draws it (activated, float32); any thread."""
+    def _snapshot_geometry(self):
+        g = self.gaussians
+        return g.means, g.scales, g.rotations, g.opacities
+
+    def _snapshot_colours(self):
+        return self.gaussians.sh, self.gaussians.sh_degree
+
+    def _model_changed(self) -> None:
+        """Call with the lock held after any write to the model: every step moves the geometry too."""
+        self._version += 1
+        self._geometry_version += 1
+
+    def keep(self, keep) -> None:
+        """Keep only the Gaussians where ``keep`` (N,) bool (a deletion or crop in the viewer); any thread, effective
+        from the next step. Their Adam moments and density statistics go with them, as a prune's do."""
+        import numpy as np
+
+        from training.reconstruct.densify import keep_gaussians
+
+        keep_t = torch.as_tensor(np.array(keep, dtype=bool))
+        if keep_t.shape != (len(self.gaussians),):
+            raise ValueError(f"keep must have {len(self.gaussians)} entries, got {tuple(keep_t.shape)}")
+        if not bool(keep_t.any()):
+            raise ValueError("that would remove every Gaussian")
+        keep_t = keep_t.to(self.device)
         with self._model_lock:
-            last = self._last_view_snapshot
-            if last is not None and last.version == self._version:
-                return last
-            g = self.gaussians
-            with torch.no_grad():
-                snap = ModelSnapshot(self._version, self._version, self.step_count, frozen_array(g.means),
-                                     frozen_array(g.scales), frozen_array(g.rotations), frozen_array(g.opacities),
-                                     frozen_array(g.sh), g.sh_degree)
-            self._last_view_snapshot = snap
-            return snap
+            keep_gaussians(self.gaussians, self.optimizer, keep_t)
+            st = self.strategy
+            st.grad_accum, st.count, st.max_radii = st.grad_accum[keep_t], st.count[keep_t], st.max_radii[keep_t]
+            self._model_changed()
+            self._snapshot = self._take_snapshot()  # a NaN restore must not bring the removed ones back
+        self.events.emit("structure", self.step_count, {"num_gaussians": len(self.gaussians)})
 
     # ----------------------------------------------------------------------------------------------- set-up
     def _make_optimizer(self) -> torch.optim.Adam:
@@ -306,9 +313,7 @@ class Reconstructor:
         """One training iteration. Returns {"step", "loss", "l1", "ssim", "psnr", "depth", "shape", "size",
         "lambda_depth", "num_gaussians", "sh_degree", "view", "cloned", "split", "pruned", "reset",
         "recovered", "times": {"rasterize", "loss", "backward", "optimizer", "densify"} (seconds)}."""
-        with self._model_lock:
-            if self._pending_config is not None:
-                self.config, self._pending_config = self._pending_config, None
+        self._take_pending_config()
         cfg = self.config
         self.step_count += 1
         i = self.step_count
@@ -368,7 +373,7 @@ class Reconstructor:
             n_before = len(self.gaussians)
             counts = self.strategy.step_post_backward(cfg.densify, i, self.gaussians, self.optimizer, info,
                                                       cam.width, cam.height, self.generator)
-            self._version += 1
+            self._model_changed()
         t5 = time.perf_counter()
         times.update(rasterize=t1 - t0, loss=t2 - t1, backward=t3 - t2, optimizer=t4 - t3, densify=t5 - t4)
         self.last_timings = times
@@ -403,7 +408,7 @@ class Reconstructor:
         self.optimizer = self._make_optimizer()
         self.optimizer.load_state_dict(copy.deepcopy(snap["optimizer"]))
         self.strategy.load_state_dict(snap["strategy"])
-        self._version += 1
+        self._model_changed()
 
     def _recover(self, step: int, view: int, why: str, times: dict, locked: bool = False) -> dict:
         self.optimizer.zero_grad(set_to_none=True)
@@ -462,7 +467,7 @@ class Reconstructor:
         with self._model_lock:
             self.gaussians = gaussians
             self.optimizer = self._make_optimizer()
-            self._version += 1
+            self._model_changed()
         self.optimizer.load_state_dict(state["optimizer"])
         self.strategy.load_state_dict(state["strategy"])
         self.generator.set_state(state["rng"])
