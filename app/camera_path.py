@@ -25,6 +25,7 @@ from pathlib import Path
 
 import numpy as np
 
+from renderer_gl.camera import look_at, orbit  # noqa: F401  (look_at is part of this module's interface)
 from training.core.atomic_write import atomic_open
 from training.core.errors import InputError
 
@@ -79,19 +80,6 @@ def pose(center, rotation_c2w) -> np.ndarray:
     m[:3, :3] = r.T
     m[:3, 3] = -r.T @ np.asarray(center, dtype=np.float64)
     return m
-
-
-def look_at(eye, target, up) -> np.ndarray:
-    """(4, 4) world-to-camera (OpenCV axes) at ``eye`` looking at ``target``, ``up`` up in the image."""
-    eye, target, up = (np.asarray(v, dtype=np.float64) for v in (eye, target, up))
-    z = target - eye
-    z /= np.linalg.norm(z)
-    x = np.cross(z, -up)  # image y points down, so the world's up is -y
-    if np.linalg.norm(x) < 1e-9:
-        x = np.cross(z, [1.0, 0.0, 0.0] if abs(z[0]) < 0.9 else [0.0, 1.0, 0.0])
-    x /= np.linalg.norm(x)
-    y = np.cross(z, x)
-    return pose(eye, np.stack([x, y, z], axis=1))
 
 
 # ------------------------------------------------------------------------------------------- quaternions
@@ -302,21 +290,9 @@ def orbit_path(center, radius: float, up, width: int = 640, height: int = 360, f
                keyframes: int = 12) -> CameraPath:
     """A loop around ``center`` at ``radius``, raised ``elevation_deg`` above the plane perpendicular to ``up``,
     always looking at the centre; ``start`` (a world direction from the centre) places the first keyframe."""
-    center, up = np.asarray(center, dtype=np.float64), np.asarray(up, dtype=np.float64)
-    up = up / np.linalg.norm(up)
-    a = np.asarray(start, dtype=np.float64) if start is not None else np.array([1.0, 0.0, 0.0])
-    a = a - up * (a @ up)
-    if np.linalg.norm(a) < 1e-9:
-        a = np.cross(up, [0.0, 0.0, 1.0]) if abs(up[2]) < 0.9 else np.cross(up, [1.0, 0.0, 0.0])
-    a /= np.linalg.norm(a)
-    b = np.cross(up, a)
-    el = math.radians(elevation_deg)
     f = 0.5 * width / math.tan(math.radians(fov_deg) / 2)
-    keys = []
-    for k in range(keyframes):
-        th = 2 * math.pi * k / keyframes
-        eye = center + radius * (math.cos(el) * (math.cos(th) * a + math.sin(th) * b) + math.sin(el) * up)
-        keys.append(Keyframe(look_at(eye, center, up), f, f, width / 2, height / 2, width, height))
+    keys = [Keyframe(m, f, f, width / 2, height / 2, width, height)
+            for m in orbit(center, radius, keyframes, up, elevation_deg=elevation_deg, start=start)]
     return CameraPath(keys, duration=seconds, fps=fps, loop=True)
 
 

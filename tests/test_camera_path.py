@@ -117,3 +117,16 @@ def test_bad_path_files_are_one_line(tmp_path, damage, words):
     with pytest.raises(InputError) as err:
         CameraPath.load(p)
     assert words in str(err.value) and "bad.json" in str(err.value) and "\n" not in str(err.value)
+
+
+def test_orbit_and_look_at_keep_the_given_up_at_the_top_of_the_image():
+    """A point above the centre (along ``up``) projects above the image centre, and one to the camera's right of it
+    to the right: the frames are neither upside down nor mirrored."""
+    up = np.array([0.1, -1.0, 0.2])
+    up /= np.linalg.norm(up)
+    for key in orbit_path((1.0, 2.0, 3.0), 4.0, up=up, keyframes=5).keyframes:
+        w2c = key.world_to_camera
+        above = w2c[:3, :3] @ (np.array([1.0, 2.0, 3.0]) + 0.5 * up) + w2c[:3, 3]
+        v = key.fy * above[1] / above[2] + key.cy
+        assert v < key.cy - 1.0
+        assert np.isclose(np.linalg.det(w2c[:3, :3]), 1.0)  # a rotation, not a reflection
