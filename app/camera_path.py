@@ -1,6 +1,6 @@
 """Camera paths for videos: keyframes (pose + intrinsics), a smooth path through them, ready-made paths (an orbit, the
-dataset's trajectory), and JSON files. numpy only (no torch, no GL): the viewer's keyframe panel and
-``splatstyler video`` share it.
+dataset's trajectory), and JSON files. numpy only, no torch (the look-at and orbit maths are renderer_gl.camera's):
+the viewer's keyframe panel and ``splatstyler video`` share it.
 
 Conventions: a keyframe's ``world_to_camera`` is a 4x4 in OpenCV axes (x right, y down, z forward), as everywhere in
 this project; intrinsics are pixels for the keyframe's own ``width`` x ``height`` and are rescaled when frames are
