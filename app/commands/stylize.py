@@ -1,7 +1,8 @@
 """``splatstyler stylize SCENE.ply --data DATA --style PAINTING -o OUT``: stylize a reconstruction after a painting.
 
-Writes OUT/point_cloud.ply (standard 3DGS layout, geometry unchanged), OUT/renders/*.png (every view, stylized) and
-OUT/report.json (losses, time per stage, style distance before/after, style-feature utilisation of the last plan).
+Writes OUT/point_cloud.ply (standard 3DGS layout, geometry unchanged unless --params all), OUT/renders/*.png (every
+view, stylized) and OUT/report.json (losses, time per stage, style distance before/after, style-feature utilisation
+of the last plan).
 
 --mask, --box or --sphere stylizes only the selected Gaussians; every other Gaussian's colour stays bit-identical
 (colour transfer included). Run it again on the output with another selection and painting to give several
@@ -17,7 +18,7 @@ from pathlib import Path
 def register(sub: argparse._SubParsersAction) -> None:
     from training.stylize import defaults as D
 
-    p = sub.add_parser("stylize", help="stylize a reconstructed scene after a painting (CCFT, colour only)",
+    p = sub.add_parser("stylize", help="stylize a reconstructed scene after a painting (CCFT, colour only by default)",
                        description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("model", metavar="SCENE.ply", help="Gaussian model reconstructed from DATA (3DGS PLY)")
     p.add_argument("--data", required=True, help="the scene the model was reconstructed from (COLMAP folder or "
@@ -52,6 +53,9 @@ def register(sub: argparse._SubParsersAction) -> None:
                    help="insert N interpolated cameras between consecutive views (default 0)")
     p.add_argument("--dc-only", action="store_true",
                    help="optimise only the DC colour; higher SH orders stay as reconstructed")
+    p.add_argument("--params", choices=D.PARAMS, default="colour",
+                   help="colour: SH colours only, geometry unchanged (default, the paper's method); all: also "
+                        "positions, scales, rotations and opacities (the paper's ablation)")
     p.add_argument("--scene-kind", choices=D.SCENE_KINDS, default="auto",
                    help="schedule: forward-facing or 360 (default: detected from the cameras)")
     p.add_argument("--max-side", type=int, default=None, help="long side of the renders in pixels (default: "
@@ -85,7 +89,7 @@ def run(args: argparse.Namespace) -> int:
         sinkhorn_iters=args.sinkhorn_iters, lambda_style=args.lambda_style, lambda_content=args.lambda_content,
         lr=args.lr, iters_per_view=args.iters_per_view, min_total_iters=args.min_total_iters,
         scene_kind=args.scene_kind, view_order=args.view_order, seed=args.seed, virtual_views=args.virtual_views,
-        dc_only=args.dc_only, preset=args.preset, max_side=args.max_side,
+        dc_only=args.dc_only, params=args.params, preset=args.preset, max_side=args.max_side,
         color_transfer=not args.no_color_transfer, backend=args.backend, device=args.device)
     try:
         config.validate()

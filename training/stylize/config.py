@@ -8,7 +8,7 @@ from dataclasses import dataclass
 from training.scene.scene import Camera
 from training.stylize import defaults as D
 from training.stylize.defaults import (FORWARD_ITERS_PER_VIEW, FORWARD_MIN_TOTAL, LOSSES, ORBIT_ITERS_PER_VIEW,
-                                       ORBIT_ITERS_PER_VIEW_MANY, ORBIT_MANY_VIEWS, PAPER_MAX_SIDE, PRESETS,
+                                       ORBIT_ITERS_PER_VIEW_MANY, ORBIT_MANY_VIEWS, PAPER_MAX_SIDE, PARAMS, PRESETS,
                                        QUICK_ITER_FRACTION, QUICK_MAX_SIDE, SCENE_KINDS, VIEW_ORDERS)
 
 DEFAULT_LAMBDA_STYLE = D.LAMBDA_STYLE
@@ -35,6 +35,7 @@ class StylizeConfig:
     seed: int = 0
     virtual_views: int = 0
     dc_only: bool = False  # keep shN at its initial values (frozen): the stylization is view-independent
+    params: str = "colour"  # colour: SH colours only (the paper) | all: geometry too (the paper's ablation)
     preset: str = "paper"  # paper | quick
     max_side: int | None = None  # long side of the renders; None: the preset's
     color_transfer: bool = True  # ARF's linear colour transfer before and after
@@ -51,6 +52,8 @@ class StylizeConfig:
             raise ValueError(f"unknown view order {self.view_order!r}; expected one of {', '.join(VIEW_ORDERS)}")
         if self.scene_kind not in SCENE_KINDS:
             raise ValueError(f"unknown scene kind {self.scene_kind!r}; expected auto, forward or 360")
+        if self.params not in PARAMS:  # worded "<field> ..." so the CLI can name the flag
+            raise ValueError(f"params must be one of {', '.join(PARAMS)}, got {self.params!r}")
         checks = [("k", self.k >= 1, "at least 1"), ("epsilon", self.epsilon > 0, "positive"),
                   ("tau", self.tau > 0, "positive"), ("sinkhorn_iters", self.sinkhorn_iters >= 1, "at least 1"),
                   ("lambda_content", self.lambda_content >= 0, "at least 0"),

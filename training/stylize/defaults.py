@@ -43,3 +43,18 @@ SHN_LR_FACTOR = 1.0 / 20.0  # 3DGS: the higher SH orders learn 20x slower than t
 
 VIEW_ORDERS = ("dataset", "nearest", "random")
 SCENE_KINDS = ("auto", "forward", "360")
+
+# What the stylization optimises. "colour": the SH colours only, geometry fixed (the paper, Method: "we fix the
+# geometric attributes of 3DGS during the stylization, optimizing only its color attributes"); "all": positions,
+# scales, rotations and opacities too (the ablation the paper's claim rests on).
+PARAMS = ("colour", "all")
+# The geometry's Adam learning rates under "all": the original 3DGS release's (Kerbl et al. 2023, graphdeco-inria
+# gaussian-splatting, arguments/__init__.py OptimizationParams: position_lr_init 0.00016 times the scene extent,
+# scaling_lr 0.005, rotation_lr 0.001, opacity_lr 0.05 (later versions of that repository lower it to 0.025); the
+# same figures as training/reconstruct/trainer.py's defaults). Adam's eps is the colours' (1e-15, as 3DGS). Constant:
+# 3DGS decays the position rate 100x over 30,000 steps from a random start, where a stylization runs a few hundred
+# to a few thousand steps from a converged model; we keep the initial rate throughout.
+MEANS_LR = 1.6e-4  # x the scene extent (Scene.extent)
+SCALES_LR = 5e-3  # on log_scales
+QUATS_LR = 1e-3
+OPACITY_LR = 5e-2  # on opacity_logits

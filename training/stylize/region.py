@@ -1,10 +1,11 @@
 """Spatial style control: stylize only a selection of the Gaussians (a boolean mask), leave the rest bit-identical.
 
 The Stylizer holds the mask; this module has the pieces that make "bit-identical" hold through every path that
-touches colours: the optimiser (gradients of unselected Gaussians are zeroed and, after each Adam step, their
-colours are copied back from a frozen copy, since Adam's momentum could still move them after a mask change) and
-the pre/post colour transfer (applied with ``torch.where`` so unselected rows keep their exact bits, and fitted on
-the pixels the selection covers rather than the whole image, so the transfer suits the region it is applied to).
+touches colours (and, with ``params="all"``, geometry): the optimiser (gradients of unselected Gaussians are zeroed
+and, after each Adam step, their trained parameters are copied back from a frozen copy, since Adam's momentum could
+still move them after a mask change) and the pre/post colour transfer (applied with ``torch.where`` so unselected
+rows keep their exact bits, and fitted on the pixels the selection covers rather than the whole image, so the
+transfer suits the region it is applied to).
 
 Which pixels the selection covers comes from a render of the model with every selected Gaussian white and every
 other black: with the alpha-blending weights w_i of a pixel, that render is sum_i w_i [i selected], the share of
@@ -92,17 +93,21 @@ def blend_content(original: np.ndarray, transferred: np.ndarray, coverage: np.nd
 
 
 def masked_step(optimizer: torch.optim.Optimizer, g: Gaussians, mask: torch.Tensor | None, frozen: Gaussians) -> None:
-    """The Adam step with the selection honoured: no gradient reaches the unselected Gaussians, and their colours
-    are copied back from ``frozen`` afterwards (momentum from before a mask change could still move them; the copy
-    is what makes them bit-identical)."""
+    """The Adam step with the selection honoured: no gradient reaches the unselected Gaussians, and their trained
+    parameters are copied back from ``frozen`` afterwards (momentum from before a mask change could still move them;
+    the copy is what makes them bit-identical). Trained: the colours always, the geometry (means, log_scales, quats,
+    opacity_logits) when its tensors require gradients (``params="all"``); untrained geometry is never written."""
     if mask is None:
         optimizer.step()
         return
     off = ~mask.to(g.sh0.device)
-    for p in (g.sh0, g.shN):
+    names = [name for name, p in g.parameters().items() if name in ("sh0", "shN") or p.requires_grad]
+    for name in names:
+        p = getattr(g, name)
         if p.grad is not None:
             p.grad[off] = 0
     optimizer.step()
     with torch.no_grad():
-        g.sh0[off] = frozen.sh0[off].to(g.sh0.device)
-        g.shN[off] = frozen.shN[off].to(g.shN.device)
+        for name in names:
+            p = getattr(g, name)
+            p[off] = getattr(frozen, name)[off].to(p.device)

@@ -5,16 +5,20 @@ render the Gaussians; VGG-16 relu3 features of the render and of the content ima
 transfer, or the pre-stylization render for a virtual view), both halved first as ARF does; the style loss (CCFT with
 the guide map carried from iteration to iteration, or the NNFM / Gram baselines) against the style image's features
 (resized so that its long side matches the render's, then halved); content loss = MSE of the features; Adam on the
-SH colour coefficients only. Geometry (means, scales, rotations, opacities) is never optimised and never written:
-it stays bit-identical. Before the first step, the content images and the Gaussians' colours get the linear colour
-transfer toward the painting; ``finish()`` re-renders every view, refits the transfer from those renders to the
-painting and applies it to the Gaussians (ARF's pre and post colour transfer).
+SH colour coefficients only (``params="colour"``, the default and the paper's method): geometry (means, scales,
+rotations, opacities) is then never optimised and never written, it stays bit-identical. ``params="all"`` (the
+paper's ablation) also optimises the means, log-scales, quaternions and opacity logits, at the original 3DGS
+learning rates (training/stylize/defaults.py), activated afresh at every render. Before the first step, the content
+images and the Gaussians' colours get the linear colour transfer toward the painting; ``finish()`` re-renders every
+view, refits the transfer from those renders to the painting and applies it to the Gaussians (ARF's pre and post
+colour transfer).
 
 The config may change between steps (the viewer's sliders): ``update_config(**changes)`` from any thread is
 validated at once and applied at the start of the next step; loss parameters, weights, learning rate, iterations per
 view and even the loss itself may change, while the settings that shape the run (``FIXED_AT_START``) are refused.
 ``snapshot()`` gives a viewer a consistent copy of the model from any thread (only the colours are copied anew while
-stylizing); ``add_listener`` delivers the trainer's events (training/core/messages.py).
+stylizing colours alone; under ``params="all"`` the geometry too, after every step); ``add_listener`` delivers the
+trainer's events (training/core/messages.py).
 """
 
 from __future__ import annotations
@@ -39,7 +43,7 @@ from training.scene.scene import Camera, Scene, over_background
 from training.stylize.region import (as_mask, blend_content, coverage_from_render, covered_pixels, indicator_sh,
                                      keep_unselected, masked_step)
 from training.stylize.style_image import check_style_array, halve, style_for_render
-from training.stylize.defaults import SHN_LR_FACTOR
+from training.stylize.defaults import MEANS_LR, OPACITY_LR, QUATS_LR, SCALES_LR, SHN_LR_FACTOR
 from training.stylize.config import (DEFAULT_LAMBDA_STYLE, DEFAULT_LR, StylizeConfig,  # noqa: F401  (re-exported)
                                      paper_schedule, render_camera, schedule)
 from training.stylize.scene_match import MATCH_MIN_ALPHA, check_model_matches_scene  # noqa: F401
@@ -47,9 +51,10 @@ from training.stylize.view_order import scene_kind, view_order
 from training.stylize.virtual_views import ViewItem, trajectory
 
 # Settings that shape the run when the Stylizer is built (the cameras, the trajectory, the colour transfer, the
-# device): update_config refuses them rather than ignore them.
+# device, which parameters the optimiser holds): update_config refuses them rather than ignore them.
 FIXED_AT_START = ("view_order", "virtual_views", "preset", "device", "color_transfer", "background", "scene_kind",
-                  "max_side", "seed")
+                  "max_side", "seed", "params")
+GEOMETRY = ("means", "log_scales", "quats", "opacity_logits")
 
 
 @dataclass
@@ -68,9 +73,10 @@ class Stylizer(LiveTrainer):
     ``style_image``: float32 (H, W, 3) in [0, 1] (see ``training.stylize.style_image.load_style_image``).
     ``vgg``: a ``VGGFeatures`` to share; loaded (with ``config``'s weights source) when None.
     The caller's Gaussians are not modified: ``self.gaussians`` is a new model sharing the geometry tensors
-    (detached) with new colour tensors.
-    ``mask``: (N,) bool, the Gaussians to stylize (None: all); the others' colours stay bit-identical through the
-    steps and both colour transfers (training/stylize/region.py); ``set_mask`` changes it between steps.
+    (detached) with new colour tensors; under ``config.params == "all"`` the optimiser gets copies of the geometry.
+    ``mask``: (N,) bool, the Gaussians to stylize (None: all); the others' colours (and geometry, under "all") stay
+    bit-identical through the steps and both colour transfers (training/stylize/region.py); ``set_mask`` changes it
+    between steps.
     """
 
     FIXED_AT_START = FIXED_AT_START
@@ -104,9 +110,19 @@ class Stylizer(LiveTrainer):
         self._mask = as_mask(mask, len(self.gaussians), model_name)
         if self._mask is not None and not bool(self._mask.any()):
             raise InputError(model_name, "the selection mask selects no Gaussians: nothing to stylize")
-        # Activated geometry, computed once: it never changes and needs no gradient.
-        self._scales = self.gaussians.scales.detach()
-        self._opacities = self.gaussians.opacities.detach()
+        self._trains_geometry = self.config.params == "all"
+        if self._trains_geometry:
+            # activated from the trained parameters at every render (``_render_geometry``); the input model's
+            # geometry is kept for what must be rendered as before stylization (virtual views' content)
+            self._scales = self._opacities = None
+            self._input_geometry = {k: getattr(self.gaussians, k).clone() for k in GEOMETRY}  # raw parameters
+            self._geometry_lrs = {"means": MEANS_LR * float(scene.extent), "log_scales": SCALES_LR,
+                                  "quats": QUATS_LR, "opacity_logits": OPACITY_LR}
+        else:
+            # Activated geometry, computed once: it never changes and needs no gradient.
+            self._scales = self.gaussians.scales.detach()
+            self._opacities = self.gaussians.opacities.detach()
+            self._input_geometry = None
 
         # Views: all cameras of the scene, at the stylization resolution.
         max_side = self.config.render_max_side
@@ -197,30 +213,45 @@ class Stylizer(LiveTrainer):
 
         return resize_image(image, camera.width, camera.height)
 
-    def render(self, camera: Camera, sh: torch.Tensor | None = None) -> tuple[torch.Tensor, torch.Tensor]:
-        """Render at ``camera`` with the current colours (or ``sh`` (N, K, 3)) -> image (H, W, 3), alpha (H, W, 1)."""
+    def _render_geometry(self, input_geometry: bool = False):
+        """(means, quats, scales, opacities) to render with: the current geometry (under "all" activated from the
+        trained leaves, so gradients reach them), or with ``input_geometry`` the input model's."""
+        if input_geometry and self._input_geometry is not None:
+            raw = self._input_geometry
+            return raw["means"], raw["quats"], torch.exp(raw["log_scales"]), torch.sigmoid(raw["opacity_logits"])
+        g = self.gaussians
+        if self._trains_geometry:
+            return g.means, g.quats, g.scales, g.opacities
+        return g.means, g.quats, self._scales, self._opacities
+
+    def render(self, camera: Camera, sh: torch.Tensor | None = None,
+               input_geometry: bool = False) -> tuple[torch.Tensor, torch.Tensor]:
+        """Render at ``camera`` with the current colours (or ``sh`` (N, K, 3)) -> image (H, W, 3), alpha (H, W, 1).
+        ``input_geometry``: with the input model's geometry (differs from the current one only under "all")."""
         from training.raster.rasterize import rasterize
 
         g = self.gaussians
         colors = g.sh if sh is None else sh
         dt = g.means.dtype
+        means, quats, scales, opacities = self._render_geometry(input_geometry)
         image, alpha, _ = rasterize(
-            g.means, g.quats, self._scales, self._opacities, colors,
+            means, quats, scales, opacities, colors,
             torch.as_tensor(camera.world_to_camera, dtype=dt, device=self.device),
             torch.as_tensor(camera.K, dtype=dt, device=self.device), camera.width, camera.height,
             sh_degree=g.sh_degree, background=torch.tensor(self.config.background, dtype=dt, device=self.device),
             backend=self.config.backend)
         return image, alpha
 
-    def render_views(self, cameras: list[Camera] | None = None, cancel=None,
-                     sh: torch.Tensor | None = None) -> list[tuple[np.ndarray, np.ndarray]]:
+    def render_views(self, cameras: list[Camera] | None = None, cancel=None, sh: torch.Tensor | None = None,
+                     input_geometry: bool = False) -> list[tuple[np.ndarray, np.ndarray]]:
         """(image (H, W, 3), alpha (H, W, 1)) numpy renders of ``cameras`` (default: every scene view) with the
-        current colours (or ``sh``); ``cancel()`` is asked before each view (Cancelled)."""
+        current colours (or ``sh``) and geometry (or the input model's: ``input_geometry``); ``cancel()`` is asked
+        before each view (Cancelled). The input model as it was: ``sh=original_sh, input_geometry=True``."""
         out = []
         with torch.no_grad():
             for cam in cameras if cameras is not None else self.cameras:
                 check_cancel(cancel)
-                img, alpha = self.render(cam, sh=sh)
+                img, alpha = self.render(cam, sh=sh, input_geometry=input_geometry)
                 out.append((img.clamp(0, 1).float().cpu().numpy(), alpha.float().cpu().numpy()))
         return out
 
@@ -255,7 +286,7 @@ class Stylizer(LiveTrainer):
         view = self.current_view
         with torch.no_grad():
             if view.is_virtual:
-                content, _ = self.render(view.camera, sh=self._initial_sh)
+                content, _ = self.render(view.camera, sh=self._initial_sh, input_geometry=True)
                 content = content.clamp(0, 1)
             else:
                 content = torch.from_numpy(self.content_images[view.source_index]).to(self.device)
@@ -282,7 +313,8 @@ class Stylizer(LiveTrainer):
             with self._model_lock:
                 self._make_optimizer()
         for group in self._optimizer.param_groups:
-            group["lr"] = cfg.learning_rate * group["lr_scale"]
+            if group["lr_scale"] is not None:  # the geometry's rates (params="all") are fixed
+                group["lr"] = cfg.learning_rate * group["lr_scale"]
 
     def _make_optimizer(self) -> None:
         g = self.gaussians
@@ -290,9 +322,14 @@ class Stylizer(LiveTrainer):
         shN = g.shN.detach().clone().requires_grad_(not self.config.dc_only)
         g.sh0, g.shN = sh0, shN
         lr = self.config.learning_rate
-        groups = [{"params": [sh0], "lr_scale": 1.0, "lr": lr}]
+        groups = [{"params": [sh0], "lr_scale": 1.0, "lr": lr, "name": "sh0"}]
         if not self.config.dc_only and shN.numel() > 0:
-            groups.append({"params": [shN], "lr_scale": SHN_LR_FACTOR, "lr": lr * SHN_LR_FACTOR})
+            groups.append({"params": [shN], "lr_scale": SHN_LR_FACTOR, "lr": lr * SHN_LR_FACTOR, "name": "shN"})
+        if self._trains_geometry:  # new leaves: the caller's (shared) tensors are never written
+            for name in GEOMETRY:
+                leaf = getattr(g, name).detach().clone().requires_grad_(True)
+                setattr(g, name, leaf)
+                groups.append({"params": [leaf], "lr_scale": None, "lr": self._geometry_lrs[name], "name": name})
         self._optimizer = torch.optim.Adam(groups, eps=1e-15)
         self._dc_only = self.config.dc_only
 
@@ -341,6 +378,8 @@ class Stylizer(LiveTrainer):
         with self._model_lock:
             masked_step(self._optimizer, self.gaussians, self._mask, self._frozen)
             self._version += 1
+            if self._trains_geometry:  # positions moved: a viewer must upload them again
+                self._geometry_version += 1
         sync()
         timings["optimizer"] = time.perf_counter() - t
         for key, value in timings.items():
@@ -416,6 +455,8 @@ class Stylizer(LiveTrainer):
 
     def _snapshot_geometry(self):
         g = self.gaussians
+        if self._trains_geometry:
+            return g.means, g.scales, g.rotations, g.opacities
         return g.means, self._scales, g.rotations, self._opacities
 
     def _snapshot_colours(self):
@@ -423,7 +464,7 @@ class Stylizer(LiveTrainer):
 
     def keep(self, keep) -> None:
         """Keep only the Gaussians where ``keep`` (N,) bool (the viewer deleted or cropped the others); any thread,
-        effective from the next step. The colour optimiser restarts (its moments belonged to the old rows)."""
+        effective from the next step. The optimiser restarts (its moments belonged to the old rows)."""
         keep_t = torch.as_tensor(np.asarray(keep, dtype=bool))
         if keep_t.shape != (len(self.gaussians),):
             raise ValueError(f"keep must have {len(self.gaussians)} entries, got {tuple(keep_t.shape)}")
@@ -432,7 +473,10 @@ class Stylizer(LiveTrainer):
         index = keep_t.nonzero()[:, 0].to(self.device)
         with self._model_lock:
             self.gaussians = self.gaussians.detached().subset(index)
-            self._scales, self._opacities = self._scales[index], self._opacities[index]
+            if self._trains_geometry:
+                self._input_geometry = {k: t[index] for k, t in self._input_geometry.items()}
+            else:
+                self._scales, self._opacities = self._scales[index], self._opacities[index]
             self._initial_sh, self.original_sh = self._initial_sh[index], self.original_sh[index]
             self._frozen = self._frozen.subset(index)
             self._mask = None if self._mask is None else self._mask[keep_t]
@@ -495,8 +539,17 @@ class Stylizer(LiveTrainer):
         return {k: v / len(cameras) for k, v in totals.items()}
 
     def stylized_gaussians(self) -> Gaussians:
-        """The current model, detached, on the CPU."""
+        """The current model, detached, on the CPU (under "all" with the optimised geometry)."""
         return self.gaussians.detached().to("cpu")
+
+    def input_gaussians(self) -> Gaussians:
+        """The input model as given (its geometry and colours, the rows ``keep`` left), detached, on the CPU: what
+        a before/after comparison renders as "before" (under "all" the current geometry is no longer the input's)."""
+        g = self.gaussians
+        raw = self._input_geometry or {k: getattr(g, k) for k in GEOMETRY}
+        sh = self.original_sh
+        return Gaussians(**{k: v.detach().clone() for k, v in raw.items()}, sh0=sh[:, :1].clone(),
+                         shN=sh[:, 1:].clone(), sh_degree=g.sh_degree).to("cpu")
 
     def utilisation(self) -> dict[str, float]:
         """Style-feature utilisation of the last iteration (whatever the loss reported)."""
