@@ -19,6 +19,7 @@ COMMANDS = [
     "info",
     "reconstruct",
     "stylize",
+    "eval",
     "export",
     "crop",
     "render",

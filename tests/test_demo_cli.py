@@ -44,6 +44,16 @@ def test_demo_runs_end_to_end(tmp_path):
     assert splat.stat().st_size == 32 * len(after)
     assert len(read_splat(splat)) == len(after)
 
+    # the contact sheet: 3 rows of photo | reconstruction | stylized, the painting closing the first row
+    from training.scene.image_io import read_image
+
+    sheet = read_image(out / "contact_sheet.png")
+    assert sheet.shape[1] > 3 * 256 and sheet.shape[0] > 2 * 192
+    assert sheet.std() > 0.05
+    # the report's metrics reach the one line a user reads
+    assert "style distance (SWD)" in proc.stdout and "consistency RMSE" in proc.stdout
+    assert styled["metrics"]["consistency_short_pairs"] > 0
+
 
 def test_demo_bad_style_is_one_line(tmp_path):
     bad = tmp_path / "painting.png"

@@ -11,7 +11,7 @@ from __future__ import annotations
 import json
 import time
 from pathlib import Path
-from typing import Any
+from typing import Any, Callable
 
 import numpy as np
 
@@ -35,10 +35,13 @@ def choose_downscale(data: Path, max_side: int) -> int:
 
 
 def stylize_to_folder(model: Path, data: Path, style: Path, out: Path, config: StylizeConfig,
-                      vgg_weights: str | None = None, listener=None, log=None, mask=None) -> dict[str, Any]:
+                      vgg_weights: str | None = None, listener=None, log=None, mask=None,
+                      metrics: Callable[[Stylizer], dict[str, Any]] | None = None) -> dict[str, Any]:
     """Run the job and return the report (also written to OUT/report.json). ``listener`` receives the stylizer's
     events (training/core/messages.py); ``log`` (a str -> None callable) gets one line describing the run.
-    ``mask``: (N,) bool, stylize only those Gaussians (Stylizer's ``mask``)."""
+    ``mask``: (N,) bool, stylize only those Gaussians (Stylizer's ``mask``). ``metrics(stylizer)``, called once the
+    stylization has finished, gives the report's "metrics" (the CLI passes training/evaluate's measures, which sit
+    above this package)."""
     from training.core.atomic_write import atomic_open, check_output_dir, make_output_dir
     from training.scene.image_io import write_image
     from training.model.ply_io import read_ply, write_ply
@@ -76,6 +79,12 @@ def stylize_to_folder(model: Path, data: Path, style: Path, out: Path, config: S
     t0 = time.perf_counter()
     distance_end = stylizer.style_distance()
     stylizer.times.add("style_distance", time.perf_counter() - t0)
+
+    measured = None
+    if metrics is not None:
+        t0 = time.perf_counter()
+        measured = metrics(stylizer)
+        stylizer.times.add("metrics", time.perf_counter() - t0)
 
     t0 = time.perf_counter()
     renders = stylizer.render_views()
@@ -117,6 +126,7 @@ def stylize_to_folder(model: Path, data: Path, style: Path, out: Path, config: S
             **{f"{k}_ratio_end_to_start": distance_end[k] / v if v > 0 else None for k, v in distance_start.items()},
         },
         "utilisation": utilisation,
+        "metrics": measured,
         "color_transfer": {
             "pre": stylizer.pre_transform.to_dict() if stylizer.pre_transform else None,
             "post": stylizer.post_transform.to_dict() if stylizer.post_transform else None,
@@ -140,7 +150,8 @@ def before_after_sheet(stylizer: Stylizer, renders: list, style_image: np.ndarra
 
     n = len(stylizer.cameras)
     picks = sorted({round(k * (n - 1) / max(1, SHEET_VIEWS - 1)) for k in range(min(SHEET_VIEWS, n))})
-    before = stylizer.render_views([stylizer.cameras[i] for i in picks], sh=stylizer.original_sh)
+    before = stylizer.render_views([stylizer.cameras[i] for i in picks], sh=stylizer.original_sh,
+                                   input_geometry=True)  # the input model, also under --params all
     rows = [[shrink_to(b, SHEET_CELL), shrink_to(renders[i][0], SHEET_CELL)] for (b, _), i in zip(before, picks)]
     rows[0].append(shrink_to(style_image, SHEET_CELL))
     return grid(rows)

@@ -1,0 +1,1 @@
+"""`splatstyler eval`: the evaluation grid (grid file, jobs, local or Ray runner, report)."""

@@ -1,0 +1,155 @@
+"""What a worker does with one job of the grid: structure from motion, a reconstruction, or a cell.
+
+``run_job(job, out, threads)`` runs in a worker process (the local pool) or a Ray task, and returns a plain dict (the
+result travels back to the driver, which records it). Each job runs the same code as the CLI subcommands, in
+process, with its console output captured in OUT/logs/<job id>.log. A job whose outputs are already complete
+returns at once (a resumed grid); an interrupted reconstruction continues from its checkpoint.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import json
+import os
+import sys
+import time
+from pathlib import Path
+from typing import Any
+
+from app.evaluate.grid import Job, job_dir
+from training.core.atomic_write import atomic_open
+
+RECON_CHECKPOINT_EVERY = 250
+
+
+def data_path(out: Path, spec: dict[str, Any]) -> Path:
+    """The scene folder a job reads: the grid's data, or the folder its sfm job wrote."""
+    return Path(spec["data"]) if spec.get("data") else job_dir(out, f"sfm/{spec['scene']}")
+
+
+@contextlib.contextmanager
+def _captured(log_path: Path):
+    """Send this process's stdout and stderr (Python's and the C libraries' alike) to ``log_path``."""
+    log_path.parent.mkdir(parents=True, exist_ok=True)
+    sys.stdout.flush()
+    sys.stderr.flush()
+    saved = os.dup(1), os.dup(2)
+    with open(log_path, "a", buffering=1) as log:
+        os.dup2(log.fileno(), 1)
+        os.dup2(log.fileno(), 2)
+        old = sys.stdout, sys.stderr
+        sys.stdout = sys.stderr = log
+        try:
+            yield log
+        finally:
+            sys.stdout.flush()
+            sys.stdout, sys.stderr = old
+            os.dup2(saved[0], 1)
+            os.dup2(saved[1], 2)
+            os.close(saved[0])
+            os.close(saved[1])
+
+
+def _last_error(log_path: Path) -> str:
+    try:
+        lines = [ln.strip() for ln in log_path.read_text(errors="replace").splitlines() if ln.strip()]
+    except OSError:
+        return "failed (no log)"
+    errors = [ln for ln in lines if ln.startswith("splatstyler: error:")]
+    return (errors[-1] if errors else lines[-1] if lines else "failed")[:400]
+
+
+def _cli(argv: list[str], log_path: Path) -> None:
+    from app.cli import main
+
+    print(f"$ splatstyler {' '.join(argv)}", flush=True)
+    rc = main(argv)
+    if rc:
+        raise RuntimeError(_last_error(log_path))
+
+
+def run_job(job: Job | dict, out: str | Path, threads: int = 1) -> dict[str, Any]:
+    """Run one job; returns {"status": "ok", ...results} or {"status": "failed", "error": one line}."""
+    if isinstance(job, dict):
+        job = Job(**{**job, "deps": tuple(job.get("deps", ()))})
+    out = Path(out)
+    _limit_threads(threads)
+    log_path = out / "logs" / (job.id.replace("/", "__") + ".log")
+    t0 = time.perf_counter()
+    try:
+        with _captured(log_path):
+            result = {"sfm": _sfm, "reconstruct": _reconstruct, "cell": _cell}[job.kind](job, out, log_path)
+    except Exception as exc:  # one cell's failure is recorded; the grid goes on
+        message = str(exc) if isinstance(exc, RuntimeError) else f"{type(exc).__name__}: {exc}"
+        return {"status": "failed", "error": message.splitlines()[0][:400] if message else type(exc).__name__,
+                "log": str(log_path), "seconds": time.perf_counter() - t0}
+    return {"status": "ok", **result, "log": str(log_path), "seconds": time.perf_counter() - t0}
+
+
+def _limit_threads(threads: int) -> None:
+    """Workers share the machine: each gets ``threads`` threads for torch and numba."""
+    try:
+        import torch
+
+        torch.set_num_threads(max(1, threads))
+    except ImportError:
+        pass
+    try:
+        import numba
+
+        numba.set_num_threads(max(1, min(threads, numba.config.NUMBA_NUM_THREADS)))
+    except ImportError:
+        pass
+
+
+def _sfm(job: Job, out: Path, log_path: Path) -> dict[str, Any]:
+    folder = job_dir(out, job)
+    report = folder / "sfm_report.json"
+    if not report.is_file():
+        _cli(["sfm", job.spec["photos"], "-o", str(folder), *job.spec["flags"]], log_path)
+    summary = json.loads(report.read_text())
+    return {"sfm": {k: v for k, v in summary.items() if isinstance(v, (int, float, str))}}
+
+
+def _reconstruct(job: Job, out: Path, log_path: Path) -> dict[str, Any]:
+    folder = job_dir(out, job)
+    report = folder / "report.json"
+    if not (report.is_file() and (folder / "point_cloud.ply").is_file()):
+        argv = ["reconstruct", str(data_path(out, job.spec)), "-o", str(folder), *job.spec["flags"],
+                "--checkpoint-every", str(RECON_CHECKPOINT_EVERY), "--no-progress"]
+        if (folder / "checkpoint.pt").is_file():
+            argv.append("--resume")  # a killed grid continues where the reconstruction stopped
+        _cli(argv, log_path)
+    r = json.loads(report.read_text())
+    keys = ("test_psnr", "test_ssim", "test_lpips", "num_gaussians", "aniso_p95", "smax_p95", "seconds")
+    return {"reconstruction": {k: r.get(k) for k in keys}, "model": str(folder / "point_cloud.ply")}
+
+
+def _cell(job: Job, out: Path, log_path: Path) -> dict[str, Any]:
+    folder = job_dir(out, job)
+    report_path = folder / "report.json"
+    recon = job_dir(out, job.spec["recon_job"])
+    spec = job.spec
+    spec_path = folder / "job.json"
+    fresh = report_path.is_file() and spec_path.is_file() and json.loads(spec_path.read_text()) == spec
+    if not fresh:  # not run yet, interrupted, or run with other settings before the grid file changed
+        if spec["method"] == "2d":
+            from app.evaluate.baseline_cell import run_baseline_cell
+
+            run_baseline_cell(recon / "point_cloud.ply", data_path(out, spec), Path(spec["painting_path"]), folder,
+                              spec["flags"])
+        else:
+            _cli(["stylize", str(recon / "point_cloud.ply"), "--data", str(data_path(out, spec)),
+                  "--style", spec["painting_path"], "-o", str(folder), *spec["flags"]], log_path)
+        with atomic_open(spec_path, "w") as f:
+            json.dump(spec, f, indent=2)
+    report = json.loads(report_path.read_text())
+    recon_report = json.loads((recon / "report.json").read_text())
+    metrics = dict(report.get("metrics") or {})
+    for key, value in (report.get("utilisation") or {}).items():
+        metrics.setdefault(key, value)
+    metrics["stylize_seconds"] = (report.get("time_s") or {}).get("total")
+    metrics["iterations"] = report.get("iterations")
+    for key in ("test_psnr", "test_ssim", "num_gaussians", "aniso_p95", "smax_p95"):
+        metrics[f"recon_{key}"] = recon_report.get(key)
+    return {"metrics": metrics, "renders": report.get("renders", []), "folder": str(folder)}

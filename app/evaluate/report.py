@@ -1,0 +1,253 @@
+"""The grid's report: a CSV of every cell and metric, a markdown page with one table per group (mean and spread
+across seeds), the paper's expected directions checked per scene, plots (matplotlib) and contact sheets (the same
+views of every setting side by side).
+
+Layout under ``folder`` (OUT/report by default): RESULTS.md, and results/cells.csv, results/plots/*.png,
+results/sheets/*.jpg, linked relatively, so the folder can be copied as is (docs/ holds one such copy).
+"""
+
+from __future__ import annotations
+
+import csv
+import datetime
+import math
+from collections import defaultdict
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from app.evaluate.grid import Grid, Group, job_dir
+from training.core.atomic_write import atomic_open
+
+SHEET_CELL = 200
+ID_COLUMNS = ("scene", "setting", "painting", "seed", "reconstruction", "method")
+
+
+def cell_rows(grid: Grid, results: dict[str, dict[str, Any]]) -> list[dict[str, Any]]:
+    """One row per finished cell: its ids and every metric."""
+    rows = []
+    for job in grid.cells:
+        r = results.get(job.id)
+        if not r or r.get("status") != "ok":
+            continue
+        row = {k: job.spec[k] for k in ID_COLUMNS}
+        row.update({k: v for k, v in (r.get("metrics") or {}).items() if isinstance(v, (int, float)) or v is None})
+        rows.append(row)
+    return rows
+
+
+def write_csv(rows: list[dict[str, Any]], path: Path) -> None:
+    columns = list(ID_COLUMNS)
+    for row in rows:
+        columns += [k for k in row if k not in columns]
+    with atomic_open(path, "w", newline="") as f:
+        w = csv.DictWriter(f, fieldnames=columns)
+        w.writeheader()
+        for row in rows:
+            w.writerow({k: _csv_value(row.get(k)) for k in columns})
+
+
+def _csv_value(v: Any) -> Any:
+    if isinstance(v, float):
+        return "" if not math.isfinite(v) else f"{v:.6g}"
+    return "" if v is None else v
+
+
+def _values(rows: list[dict], metric: str) -> list[float]:
+    out = []
+    for r in rows:
+        v = r.get(metric)
+        if isinstance(v, (int, float)) and math.isfinite(float(v)):
+            out.append(float(v))
+    return out
+
+
+def _fmt(x: float) -> str:
+    if x == 0:
+        return "0"
+    a = abs(x)
+    return f"{x:.3g}" if 1e-3 <= a < 1e4 else f"{x:.2e}"
+
+
+def mean_sd(values: list[float]) -> str:
+    """"mean ± sd" (sample sd over the seeds and paintings pooled in the cell), or the value alone for one."""
+    if not values:
+        return "-"
+    if len(values) == 1:
+        return _fmt(values[0])
+    return f"{_fmt(float(np.mean(values)))} ± {_fmt(float(np.std(values, ddof=1)))}"
+
+
+def _group_rows(group: Group, rows: list[dict], by_painting: bool = False) -> dict[tuple, list[dict]]:
+    """The group's cells by (scene, setting), or by (scene, setting, painting)."""
+    out: dict[tuple, list[dict]] = defaultdict(list)
+    for r in rows:
+        if r["setting"] in group.settings and (group.paintings is None or r["painting"] in group.paintings):
+            key = (r["scene"], r["setting"]) + ((r["painting"],) if by_painting else ())
+            out[key].append(r)
+    return out
+
+
+def check_expectations(group: Group, rows: list[dict], scenes: list[str]) -> list[str]:
+    """For each expected direction, on how many scenes the means agree (seeds and paintings pooled)."""
+    cells = _group_rows(group, rows)
+    lines = []
+    for a, op, b, metric in group.expect:
+        agree, compared, detail = 0, 0, []
+        for scene in scenes:
+            va, vb = _values(cells.get((scene, a), []), metric), _values(cells.get((scene, b), []), metric)
+            if not va or not vb:
+                continue
+            ma, mb = float(np.mean(va)), float(np.mean(vb))
+            ok = ma < mb if op == "<" else ma > mb
+            compared += 1
+            agree += ok
+            detail.append(f"{scene} {_fmt(ma)} vs {_fmt(mb)}{'' if ok else ' (not)'}")
+        if compared:
+            lines.append(f"- paper: {a} {op} {b} on `{metric}`: ours agrees on {agree} of {compared} scenes "
+                         f"({'; '.join(detail)})")
+        else:
+            lines.append(f"- paper: {a} {op} {b} on `{metric}`: no finished cells to compare")
+    return lines
+
+
+def plot_group(group: Group, rows: list[dict], scenes: list[str], path: Path) -> bool:
+    """Bars per scene and setting, one panel per metric, error bars = sd across seeds (and paintings)."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    cells = _group_rows(group, rows)
+    metrics = [m for m in group.metrics if any(_values(v, m) for v in cells.values())]
+    if not metrics:
+        return False
+    fig, axes = plt.subplots(1, len(metrics), figsize=(3.2 * len(metrics) + 0.8, 3.0), squeeze=False)
+    width = 0.8 / max(1, len(group.settings))
+    for ax, metric in zip(axes[0], metrics):
+        for k, setting in enumerate(group.settings):
+            means, sds = [], []
+            for scene in scenes:
+                v = _values(cells.get((scene, setting), []), metric)
+                means.append(np.mean(v) if v else np.nan)
+                sds.append(np.std(v, ddof=1) if len(v) > 1 else 0.0)
+            x = np.arange(len(scenes)) + (k - (len(group.settings) - 1) / 2) * width
+            ax.bar(x, means, width, yerr=sds, capsize=2, label=setting)
+        ax.set_xticks(np.arange(len(scenes)), scenes)
+        ax.set_title(metric, fontsize=9)
+        ax.tick_params(labelsize=8)
+    axes[0][0].legend(fontsize=7)
+    fig.suptitle(group.title, fontsize=10)
+    fig.tight_layout()
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fig.savefig(path, dpi=90)
+    plt.close(fig)
+    return True
+
+
+def contact_sheet(grid: Grid, out: Path, group: Group, scene: str, results: dict, path: Path) -> list[str] | None:
+    """Rows: the group's settings (and paintings), first seed; columns: the same evenly spaced views; the painting
+    closes each row. Returns the row labels, or None when no cell of the scene has renders."""
+    from training.scene.image_grid import grid as layout, shrink_to
+    from training.scene.image_io import read_image, write_image
+
+    paintings = group.paintings or list(grid.paintings)
+    seed = grid.seeds[0]
+    rows, labels = [], []
+    for setting in group.settings:
+        for painting in paintings:
+            jid = f"cell/{scene}/{setting}/{painting}/seed{seed}"
+            r = results.get(jid)
+            if not r or r.get("status") != "ok" or not r.get("renders"):
+                continue
+            renders = r["renders"]
+            n = len(renders)
+            picks = sorted({round(k * (n - 1) / max(1, grid.sheet_views - 1)) for k in range(min(grid.sheet_views, n))})
+            folder = job_dir(out, jid) / "renders"
+            row = [shrink_to(read_image(folder / renders[i]), SHEET_CELL) for i in picks]
+            row.append(shrink_to(read_image(grid.paintings[painting]), SHEET_CELL))
+            rows.append(row)
+            labels.append(f"{setting} / {painting}" if len(paintings) > 1 else setting)
+    if not rows:
+        return None
+    path.parent.mkdir(parents=True, exist_ok=True)
+    write_image(path, layout(rows), quality=85)
+    return labels
+
+
+def write_report(grid: Grid, out: Path, results: dict[str, dict[str, Any]], folder: Path | None = None,
+                 command: str = "") -> Path:
+    """Write RESULTS.md, the CSV, the plots and the contact sheets; returns the markdown's path."""
+    folder = Path(folder) if folder is not None else Path(out) / "report"
+    assets = folder / "results"
+    rows = cell_rows(grid, results)
+    write_csv(rows, assets / "cells.csv")
+    scenes = list(grid.scenes)
+    cells = grid.cells
+    ok = sum(1 for j in cells if results.get(j.id, {}).get("status") == "ok")
+    failed = [j for j in grid.jobs if results.get(j.id, {}).get("status") == "failed"]
+    missing = [j for j in cells if j.id not in results]
+
+    md = [f"# {grid.title}", ""]
+    if grid.intro:
+        md += [grid.intro.strip(), ""]
+    md += [f"Generated by `{command or 'splatstyler eval ' + grid.path.name}` on "
+           f"{datetime.date.today().isoformat()} from `{grid.path.name}`: {ok} of {len(cells)} cells finished, "
+           f"{len([j for j in failed if j.kind == 'cell'])} failed, {len(missing)} not run. Every cell and metric: "
+           f"[results/cells.csv](results/cells.csv). Values are mean ± sample standard deviation over the seeds "
+           f"(and paintings, where a row pools several); n is the number of cells.", ""]
+
+    md += ["## Reconstructions", "", "| reconstruction | test PSNR | SSIM | Gaussians | anisotropy p95 | "
+           "largest scale p95 | minutes |", "|---|---|---|---|---|---|---|"]
+    recon_rows: dict[str, list[dict]] = defaultdict(list)
+    for job in grid.jobs:
+        r = results.get(job.id, {})
+        if job.kind == "reconstruct" and r.get("status") == "ok":
+            recon_rows[f"{job.spec['scene']} {job.spec['variant']}"].append(r.get("reconstruction") or {})
+    for name, rs in recon_rows.items():
+        md.append(f"| {name} (n={len(rs)}) | {mean_sd(_values(rs, 'test_psnr'))} | {mean_sd(_values(rs, 'test_ssim'))}"
+                  f" | {mean_sd(_values(rs, 'num_gaussians'))} | {mean_sd(_values(rs, 'aniso_p95'))} | "
+                  f"{mean_sd(_values(rs, 'smax_p95'))} | {mean_sd([s / 60 for s in _values(rs, 'seconds')])} |")
+    md += ["", "## Settings", "", "| setting | reconstruction | method | flags (on top of the grid's) |",
+           "|---|---|---|---|"]
+    for name, st in grid.settings.items():
+        md.append(f"| {name} | {st['reconstruction']} | {st['method']} | `{' '.join(st['flags']) or '-'}` |")
+    md.append("")
+
+    for group in grid.groups:
+        md += [f"## {group.title}", ""]
+        if group.about:
+            md += [group.about.strip(), ""]
+        cells_by = _group_rows(group, rows, by_painting=True)
+        metrics = group.metrics
+        md += ["| scene | setting | painting | n | " + " | ".join(metrics) + " |",
+               "|---|---|---|---|" + "---|" * len(metrics)]
+        for scene in scenes:
+            for setting in group.settings:
+                for painting in group.paintings or list(grid.paintings):
+                    rs = cells_by.get((scene, setting, painting), [])
+                    if rs:
+                        md.append(f"| {scene} | {setting} | {painting} | {len(rs)} | "
+                                  + " | ".join(mean_sd(_values(rs, m)) for m in metrics) + " |")
+        md.append("")
+        if group.expect:
+            md += check_expectations(group, rows, scenes) + [""]
+        plot = assets / "plots" / f"{group.name}.png"
+        if plot_group(group, rows, scenes, plot):
+            md += [f"![{group.title}](results/plots/{plot.name})", ""]
+        for scene in scenes:
+            sheet = assets / "sheets" / f"{group.name}_{scene}.jpg"
+            labels = contact_sheet(grid, out, group, scene, results, sheet)
+            if labels:
+                md += [f"{scene}, seed {grid.seeds[0]}; rows: {', '.join(labels)}; columns: "
+                       f"{grid.sheet_views} evenly spaced views, then the painting.", "",
+                       f"![{group.title}: {scene}](results/sheets/{sheet.name})", ""]
+    if grid.discussion:
+        md += ["## Discussion", "", grid.discussion.strip(), ""]
+    if failed:
+        md += ["## Failed jobs", ""] + [f"- `{j.id}`: {results[j.id].get('error')}" for j in failed] + [""]
+    path = folder / "RESULTS.md"
+    with atomic_open(path, "w") as f:
+        f.write("\n".join(md))
+    return path

@@ -1,0 +1,179 @@
+"""Run a grid's jobs: a local pool of worker processes by default, or tasks on a Ray cluster.
+
+Jobs run as soon as the jobs they read from have finished (sfm, then the shared reconstruction, then its cells).
+The driver records every result in OUT/jobs/<job id>.json as it arrives (atomically): a result with status "ok" is
+final, so a killed or interrupted grid started again skips those and continues; a failed job is recorded with its
+one-line error, its dependants are marked failed without running, the rest of the grid goes on, and the next run
+tries the failed ones again.
+
+Ray (``--ray auto`` or an address): one task per job with one CPU each (``--threads`` of them per task), results
+gathered back through Ray; the workers must see the grid's data, paintings and OUT at the same paths (a shared
+filesystem), as the reconstruction cache and the renders are files. Ray is an optional extra (``.[ray]``).
+"""
+
+from __future__ import annotations
+
+import concurrent.futures as cf
+import json
+import multiprocessing
+import os
+import time
+from dataclasses import asdict
+from pathlib import Path
+from typing import Any, Callable
+
+from app.evaluate.grid import Grid, Job
+from app.evaluate.jobs import run_job
+from training.core.atomic_write import atomic_open
+from training.core.errors import InputError
+
+
+def result_path(out: Path, job: Job | str) -> Path:
+    return Path(out) / "jobs" / ((job.id if isinstance(job, Job) else job) + ".json")
+
+
+def load_results(out: Path, grid: Grid) -> dict[str, dict[str, Any]]:
+    """The recorded results of the grid's jobs (those that have one)."""
+    results = {}
+    for job in grid.jobs:
+        p = result_path(out, job)
+        if p.is_file():
+            try:
+                results[job.id] = json.loads(p.read_text())
+            except (OSError, json.JSONDecodeError):
+                pass  # a damaged record: the job runs again
+    return results
+
+
+def is_done(result: dict[str, Any] | None, job: Job) -> bool:
+    """A recorded "ok" for this very job: a record made with other settings (the grid file changed) does not count."""
+    return bool(result) and result.get("status") == "ok" and result.get("job", {}).get("spec") == job.spec
+
+
+def _record(out: Path, job: Job, result: dict[str, Any]) -> None:
+    result = {"job": asdict(job), **result}
+    with atomic_open(result_path(out, job), "w") as f:
+        json.dump(result, f, indent=2, default=str)
+        f.write("\n")
+
+
+class LocalPool:
+    """``workers`` processes (spawned: each starts clean, with its own torch and numba thread pools)."""
+
+    def __init__(self, workers: int, threads: int):
+        self.threads = threads
+        self.capacity = workers
+        os.environ["TQDM_DISABLE"] = "1"  # inherited by the spawned workers: no progress bars in the job logs
+        self.pool = cf.ProcessPoolExecutor(max_workers=workers, mp_context=multiprocessing.get_context("spawn"))
+
+    def submit(self, job: Job, out: Path):
+        return self.pool.submit(run_job, asdict(job), str(out), self.threads)
+
+    def wait(self, handles: list) -> list[tuple[Any, dict]]:
+        done, _ = cf.wait(handles, return_when=cf.FIRST_COMPLETED)
+        out = []
+        for h in done:
+            try:
+                out.append((h, h.result()))
+            except Exception as exc:  # the worker process died (killed, out of memory)
+                out.append((h, {"status": "failed", "error": f"worker died: {type(exc).__name__}: {exc}"}))
+        return out
+
+    def close(self, cancel: bool = False) -> None:
+        self.pool.shutdown(wait=not cancel, cancel_futures=cancel)
+
+
+class RayPool:
+    """One Ray task per job; ``address`` "auto", "local" (start one here) or ray://host:port."""
+
+    def __init__(self, address: str, threads: int, num_cpus: int | None = None):
+        try:
+            import ray
+        except ImportError:
+            raise InputError(None, "--ray needs Ray: pip install 'splatstyler[ray]' (or pip install ray)") from None
+        self.ray = ray
+        self.threads = threads
+        if not ray.is_initialized():
+            env = {"env_vars": {"TQDM_DISABLE": "1"}}
+            if address == "local":
+                ray.init(num_cpus=num_cpus, include_dashboard=False, log_to_driver=False, runtime_env=env)
+            else:
+                ray.init(address=address, log_to_driver=False, runtime_env=env)
+        self.task = ray.remote(num_cpus=threads, max_retries=0)(run_job)
+        self.capacity = max(1, int(ray.cluster_resources().get("CPU", 1) // threads))
+
+    def submit(self, job: Job, out: Path):
+        return self.task.remote(asdict(job), str(out), self.threads)
+
+    def wait(self, handles: list) -> list[tuple[Any, dict]]:
+        done, _ = self.ray.wait(handles, num_returns=1)
+        out = []
+        for h in done:
+            try:
+                out.append((h, self.ray.get(h)))
+            except Exception as exc:  # the task's worker died
+                out.append((h, {"status": "failed", "error": f"Ray task failed: {type(exc).__name__}: {exc}"}))
+        return out
+
+    def close(self, cancel: bool = False) -> None:
+        pass  # the cluster outlives the grid; a local instance ends with this process
+
+
+def run_grid(grid: Grid, out: Path, pool, log: Callable[[str], None] = print,
+             only: Callable[[Job], bool] | None = None) -> dict[str, dict[str, Any]]:
+    """Run every job of ``grid`` without an "ok" record (those ``only`` accepts, and what they need) on ``pool``;
+    returns all results by job id."""
+    out = Path(out)
+    results = load_results(out, grid)
+    by_id = {j.id: j for j in grid.jobs}
+    wanted = [j for j in grid.jobs if only is None or only(j)]
+    needed: set[str] = set()
+    stack = [j.id for j in wanted]
+    while stack:
+        jid = stack.pop()
+        if jid not in needed:
+            needed.add(jid)
+            stack.extend(by_id[jid].deps)
+    todo = [j for j in grid.jobs if j.id in needed and not is_done(results.get(j.id), j)]
+    skipped = len(needed) - len(todo)
+    log(f"eval: {len(todo)} jobs to run ({skipped} already done) in {out}")
+    running: dict[Any, Job] = {}
+    pending = list(todo)
+    todo_ids, finished_ids = {j.id for j in todo}, set()
+    finished = 0
+    t0 = time.perf_counter()
+    try:
+        while pending or running:
+            for job in list(pending):
+                states = [results.get(d, {}).get("status") if d not in todo_ids or d in finished_ids else None
+                          for d in job.deps]
+                if any(s == "failed" for s in states):
+                    failed_dep = next(d for d in job.deps if results.get(d, {}).get("status") == "failed")
+                    results[job.id] = {"status": "failed", "error": f"not run: {failed_dep} failed"}
+                    _record(out, job, results[job.id])
+                    finished_ids.add(job.id)
+                    pending.remove(job)
+                    finished += 1
+                    log(f"[{finished}/{len(todo)}] {job.id}: skipped ({failed_dep} failed)")
+                elif all(s == "ok" for s in states) and len(running) < pool.capacity:
+                    # no queue beyond the free workers: the next free worker takes the first ready job in the
+                    # grid's order, so the settings listed first finish first
+                    running[pool.submit(job, out)] = job
+                    pending.remove(job)
+            if not running:
+                break
+            for handle, result in pool.wait(list(running)):
+                job = running.pop(handle)
+                results[job.id] = result
+                _record(out, job, result)
+                finished_ids.add(job.id)
+                finished += 1
+                what = f"failed: {result.get('error')}" if result.get("status") != "ok" else \
+                    f"ok in {result.get('seconds', 0):.0f} s"
+                log(f"[{finished}/{len(todo)}] {job.id}: {what} ({(time.perf_counter() - t0) / 60:.1f} min)")
+    except KeyboardInterrupt:
+        pool.close(cancel=True)
+        log("eval: interrupted; finished jobs are recorded, run the same command again to continue")
+        raise
+    pool.close()
+    return results

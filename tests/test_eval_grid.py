@@ -1,0 +1,141 @@
+"""`splatstyler eval`: the grid file, a real (tiny) grid through the console command with a local pool and on a
+local Ray instance, resuming, and one failing cell that does not stop the grid."""
+
+from __future__ import annotations
+
+import csv
+import json
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+from app.evaluate.grid import load_grid
+from training.core.errors import InputError
+
+TINY = """
+title = "tiny"
+seeds = [0]
+[reconstruct]
+iters = 100
+downscale = 4
+[stylize]
+preset = "quick"
+max_side = 64
+iters_per_view = 1
+min_total_iters = 3
+[scenes.demo]
+data = "{scene}"
+[paintings]
+strokes = "{style}"
+[settings.ccft]
+[settings.nnfm]
+loss = "nnfm"
+{extra}
+[groups.loss]
+title = "Loss"
+settings = ["ccft", "nnfm"]
+metrics = ["utilisation", "swd_ratio_pre_ct", "consistency_short_rmse"]
+expect = [["ccft", ">", "nnfm", "utilisation"]]
+"""
+
+
+@pytest.fixture(scope="module")
+def demo():
+    from assets.demo.assets import demo_assets
+
+    return demo_assets()
+
+
+def write_grid(folder: Path, demo, extra: str = "") -> Path:
+    path = folder / "grid.toml"
+    path.write_text(TINY.format(scene=demo.scene_dir, style=demo.style_image, extra=extra))
+    return path
+
+
+def run_eval(*argv: str) -> subprocess.CompletedProcess:
+    return subprocess.run([sys.executable, "-m", "app", "eval", *argv], capture_output=True, text=True, timeout=1500)
+
+
+@pytest.mark.parametrize("body, problem", [
+    ("[scenes.a]\ndata = 'x'\n", "no such file or folder"),
+    ("colour = 1\n", "unknown key 'colour'"),
+    ("seeds = []\n", "seeds must be a non-empty list"),
+    ("[scenes.a]\n", "needs exactly one of data"),
+])
+def test_bad_grid_files_name_the_problem(tmp_path, body, problem):
+    path = tmp_path / "g.toml"
+    path.write_text(body)
+    with pytest.raises(InputError, match=problem):
+        load_grid(path)
+
+
+def test_grid_expands_cells_and_shares_reconstructions(tmp_path, demo):
+    grid = load_grid(write_grid(tmp_path, demo, extra='[settings.vanilla]\nreconstruction = "plain"\n'
+                                                  '[reconstructions.plain]\nno_shape = true\n'))
+    cells = grid.cells
+    assert [c.spec["setting"] for c in cells] == ["ccft", "nnfm", "vanilla"]
+    recons = [j for j in grid.jobs if j.kind == "reconstruct"]
+    assert len(recons) == 2  # ccft and nnfm share one; the variant has its own
+    assert cells[0].deps == cells[1].deps != cells[2].deps
+    assert "--no-shape" in recons[1].spec["flags"] and "--no-shape" not in recons[0].spec["flags"]
+    assert cells[1].spec["flags"][-4:] == ["--loss", "nnfm", "--seed", "0"]
+
+
+def test_undefined_names_are_refused(tmp_path, demo):
+    with pytest.raises(InputError, match="reconstruction 'nope' is not defined"):
+        load_grid(write_grid(tmp_path, demo, extra='[settings.x]\nreconstruction = "nope"\n'))
+    path = write_grid(tmp_path, demo)
+    path.write_text(path.read_text().replace('settings = ["ccft", "nnfm"]', 'settings = ["ccft", "gram"]'))
+    with pytest.raises(InputError, match="'gram' is not in"):
+        load_grid(path)
+
+
+@pytest.mark.slow
+def test_grid_runs_resumes_and_records_a_failed_cell(tmp_path, demo):
+    grid = write_grid(tmp_path, demo, extra="[settings.broken]\ntau = -1\n")
+    out = tmp_path / "out"
+    proc = run_eval(str(grid), "-o", str(out), "--workers", "2", "--threads", "1")
+    # the broken cell fails with the stylize command's own one-line message; the others finish
+    assert proc.returncode == 1, proc.stdout[-3000:] + proc.stderr[-3000:]
+    broken = json.loads((out / "jobs" / "cell" / "demo" / "broken" / "strokes" / "seed0.json").read_text())
+    assert broken["status"] == "failed" and "tau" in broken["error"] and "\n" not in broken["error"]
+    with open(out / "report" / "results" / "cells.csv") as f:
+        rows = list(csv.DictReader(f))
+    assert sorted(r["setting"] for r in rows) == ["ccft", "nnfm"]
+    for row in rows:
+        for key in ("utilisation", "swd_ratio_pre_ct", "consistency_short_rmse", "structure_distance",
+                    "recon_test_psnr"):
+            assert row[key] != "" and float(row[key]) == float(row[key]), (row["setting"], key)
+    md = (out / "report" / "RESULTS.md").read_text()
+    assert "2 of 3 cells finished, 1 failed" in md
+    assert "paper: ccft > nnfm on `utilisation`: ours agrees on" in md
+    assert (out / "report" / "results" / "plots" / "loss.png").stat().st_size > 1000
+    assert (out / "report" / "results" / "sheets" / "loss_demo.jpg").is_file()
+    assert "cell/demo/broken/strokes/seed0" in md
+
+    # a second run resumes: the finished cells are kept untouched, only the failed one runs again
+    ok_report = out / "cell" / "demo" / "ccft" / "strokes" / "seed0" / "report.json"
+    before = ok_report.stat().st_mtime_ns
+    (out / "jobs" / "cell" / "demo" / "nnfm" / "strokes" / "seed0.json").unlink()  # as if killed mid-cell
+    proc = run_eval(str(grid), "-o", str(out), "--workers", "1")
+    assert "2 jobs to run (2 already done)" in proc.stdout, proc.stdout
+    assert ok_report.stat().st_mtime_ns == before
+    nnfm = json.loads((out / "jobs" / "cell" / "demo" / "nnfm" / "strokes" / "seed0.json").read_text())
+    assert nnfm["status"] == "ok"
+
+
+@pytest.mark.slow
+def test_grid_runs_on_a_local_ray_instance(tmp_path, demo):
+    pytest.importorskip("ray")
+    grid = write_grid(tmp_path, demo)
+    out = tmp_path / "ray_out"
+    # a local Ray instance with the machine's CPUs (2 in CI), one task per job
+    proc = run_eval(str(grid), "-o", str(out), "--ray", "local", "--threads", "1")
+    assert proc.returncode == 0, proc.stdout[-3000:] + proc.stderr[-3000:]
+    assert "on Ray (local)" in proc.stdout
+    for setting in ("ccft", "nnfm"):
+        rec = json.loads((out / "jobs" / "cell" / "demo" / setting / "strokes" / "seed0.json").read_text())
+        assert rec["status"] == "ok" and rec["metrics"]["utilisation"] > 0
+    assert (out / "report" / "RESULTS.md").is_file()
