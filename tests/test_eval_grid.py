@@ -139,3 +139,17 @@ def test_grid_runs_on_a_local_ray_instance(tmp_path, demo):
         rec = json.loads((out / "jobs" / "cell" / "demo" / setting / "strokes" / "seed0.json").read_text())
         assert rec["status"] == "ok" and rec["metrics"]["utilisation"] > 0
     assert (out / "report" / "RESULTS.md").is_file()
+
+
+def test_a_record_made_with_other_settings_is_not_done(tmp_path, demo):
+    from app.evaluate.runner import is_done
+
+    grid = load_grid(write_grid(tmp_path, demo))
+    job = grid.cells[1]
+    record = {"status": "ok", "job": {"id": job.id, "spec": dict(job.spec)}}
+    assert is_done(record, job)
+    path = tmp_path / "grid.toml"
+    path.write_text(path.read_text().replace('loss = "nnfm"', 'loss = "nnfm"\ntau = 0.1'))
+    changed = load_grid(path)
+    assert not is_done(record, changed.cells[1])  # the grid file changed this cell: it runs again
+    assert not is_done({**record, "status": "failed"}, job)

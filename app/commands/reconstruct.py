@@ -35,6 +35,9 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--max-side", type=int, default=None, metavar="PX",
                    help="train with the long side at most PX pixels, by the smallest whole factor that gets there "
                         "(overrides the preset's: quick 400, standard 1000, paper full size)")
+    p.add_argument("--max-gaussians", type=int, default=None, metavar="N",
+                   help="cap on the number of Gaussians densification may reach (overrides the preset's: quick "
+                        "60000, standard 300000, paper none)")
     p.add_argument("--depth", choices=("sfm", "mono", "none"), default=None,
                    help="depth targets: sparse SfM depth (default), Depth Anything V2 aligned to SfM, or none. "
                         "With sfm on a scene without SfM points the depth term is switched off, with a warning")
@@ -69,6 +72,12 @@ def _config(args):
         cfg.downscale, cfg.max_side = args.downscale, None
     if args.max_side is not None:
         cfg.max_side = args.max_side
+    if args.max_gaussians is not None:
+        if args.max_gaussians < 1:
+            from training.core.errors import InputError
+
+            raise InputError(None, f"--max-gaussians must be at least 1, got {args.max_gaussians}")
+        cfg.densify.max_gaussians = args.max_gaussians
     if args.depth is not None:
         cfg.depth = args.depth
     cfg.mono_depth_model = args.mono_depth_model

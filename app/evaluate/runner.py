@@ -80,6 +80,11 @@ class LocalPool:
         return out
 
     def close(self, cancel: bool = False) -> None:
+        if cancel:
+            # a worker busy with a job would otherwise run it to the end with nobody to record it; what it wrote
+            # so far (a reconstruction's checkpoint) is picked up by the next run
+            for proc in list(getattr(self.pool, "_processes", {}).values()):
+                proc.terminate()
         self.pool.shutdown(wait=not cancel, cancel_futures=cancel)
 
 
