@@ -1,5 +1,6 @@
-"""Imports run one way: core, scene and model at the bottom, raster above them, the trainers above that, the app on
-top. The test reads every module's imports (those inside functions too) and fails on one that goes the wrong way."""
+"""Imports run one way: core, scene and model at the bottom, raster above them, the trainers above that, the
+evaluation (training/evaluate) above the trainers, the app on top. The test reads every module's imports (those
+inside functions too) and fails on one that goes the wrong way."""
 
 from __future__ import annotations
 
@@ -12,7 +13,7 @@ import pytest
 
 ROOT = Path(__file__).resolve().parents[1]
 # training packages, bottom to top: a package may import its own modules and those of lower rank
-TRAINING_RANKS = {"core": 0, "scene": 1, "model": 2, "raster": 3, "reconstruct": 4, "stylize": 5}
+TRAINING_RANKS = {"core": 0, "scene": 1, "model": 2, "raster": 3, "reconstruct": 4, "stylize": 5, "evaluate": 6}
 GUI_MODULES = ("moderngl", "glfw", "imgui_bundle", "OpenGL", "glcontext")
 # renderer_gl may read these torch-free constant modules and nothing else of the engine: one source of defaults
 RENDERER_MAY_IMPORT = ("training.raster.constants", "training.model.sh_constants")

@@ -1,0 +1,229 @@
+"""The evaluation entry points: ``measure_images`` (renders in, flat dict of floats out), ``measure_stylizer``
+(renders a Stylizer's current model, its original colours and its pre-colour-transfer colours, then measures) and
+``summary_line`` (one line for the CLI). The formulas are in the modules they come from and in docs/evaluation.md.
+
+Keys of the dict (None where a metric does not apply):
+
+- ``consistency_short_rmse``, ``consistency_short_lpips``, ``consistency_short_valid``, ``consistency_short_pairs``:
+  the depth-warp consistency (consistency.py) over the pairs of views next to each other in the trajectory order
+  (RMSE and valid fraction over every pair, LPIPS over ``lpips_pairs`` (8) of them, evenly spaced);
+  ``consistency_long_*`` the same for views ``long_gap`` (7) apart, None (pairs 0) when the order has no such pair;
+- ``gram_relu1`` .. ``gram_relu4``, ``swd_relu1`` .. ``swd_relu4``: style distances of the stylized renders to the
+  painting (style_metrics.py), mean over ``style_views`` (8) views evenly spaced over the cameras;
+- ``gram_ratio_pre_ct``, ``swd_ratio_pre_ct``: mean over the four layers of (distance of the stylized renders) /
+  (distance of the unstylized renders after the pre colour transfer), i.e. where the stylizer started; below 1
+  means closer to the painting than the start. Without colour transfer (``original_pre_ct`` None) the start is the
+  original itself and these equal the ``*_ratio_original`` values;
+- ``gram_ratio_original``, ``swd_ratio_original``: the same against the original renders (before any colour
+  transfer);
+- ``structure_distance``: self-similarity structure distance stylized vs original (content_metrics.py), mean over
+  the style views;
+- ``luminance_psnr``: blurred-luminance PSNR stylized vs original in dB, mean over the style views (inf only for
+  identical images).
+
+Cost, measured on this machine's 2 CPU cores (torch on 2 threads, OMP_WAIT_POLICY=PASSIVE as ``training`` sets it,
+other jobs running: load average about 3) for 20 views at 256 x 192 with the defaults: ``measure_images`` about
+11 s: LPIPS of the 16 warped pairs about 5.5 s, the VGG taps of 3 x 8 renders and the painting about 3 s, the 32
+warps, the style statistics and the structure distance the rest. ``measure_stylizer`` adds its 20 + 2 x 8 renders
+(about 2.5 s for 30,000 Gaussians with the numba rasterizer). If torch is imported before ``training`` (so
+OpenMP's threads spin while idle), the same call takes several times longer.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Sequence
+
+import numpy as np
+import torch
+
+from training.evaluate.consistency import consistency_metrics
+from training.evaluate.content_metrics import blurred_luminance_psnr, structure_distance
+from training.evaluate.style_metrics import mean_style_distances, painting_for, style_distances, taps_stats
+from training.evaluate.vgg_taps import LAYERS, VGGTaps
+
+SHORT_GAP = 1
+LONG_GAP = 7
+STYLE_VIEWS = 8  # views the style and content metrics look at (evenly spaced over the cameras)
+LPIPS_PAIRS = 8  # pairs per range that get LPIPS (evenly spaced); RMSE and the valid fraction use every pair
+
+
+def style_view_indices(n: int, count: int | None = STYLE_VIEWS) -> list[int]:
+    """The camera indices the style and content metrics use: ``count`` of ``n`` evenly spaced (all when
+    ``count`` is None or n <= count)."""
+    if count is None or n <= count:
+        return list(range(n))
+    return sorted({int(i) for i in np.linspace(0, n - 1, count).round()})
+
+
+def _ratio(num: dict, den: dict, kind: str) -> float | None:
+    values = [num[f"{kind}_{layer}"] / den[f"{kind}_{layer}"] for layer in LAYERS if den[f"{kind}_{layer}"] > 0]
+    return float(np.mean(values)) if values else None
+
+
+def measure_images(stylized: Sequence[np.ndarray], depths: Sequence[np.ndarray], alphas: Sequence[np.ndarray],
+                   original: Sequence[np.ndarray | None], original_pre_ct: Sequence[np.ndarray | None] | None,
+                   cameras, order: Sequence[int], painting: np.ndarray, lpips=None, taps: VGGTaps | None = None,
+                   long_gap: int = LONG_GAP, style_views: int | None = STYLE_VIEWS,
+                   max_pairs: int | None = None, lpips_pairs: int | None = LPIPS_PAIRS) -> dict[str, float | None]:
+    """Every metric for one stylized scene; lists indexed like ``cameras``: ``stylized`` (H, W, 3) renders in
+    [0, 1], their expected depths ``depths`` (H, W, 1) and ``alphas`` (H, W, 1), ``original`` renders with the
+    input colours, ``original_pre_ct`` with the colours after the pre colour transfer (None: no colour transfer).
+    Of ``original`` and ``original_pre_ct`` only the entries at ``style_view_indices(len(cameras), style_views)``
+    are read (the others may be None). ``order``: the trajectory, camera indices. ``lpips``: a
+    ``training.reconstruct.lpips.LPIPS`` (loaded when None), ``taps`` a ``VGGTaps`` (made from the LPIPS weights
+    when None). ``max_pairs`` limits the pairs per range, ``lpips_pairs`` those of them that get LPIPS (evenly
+    spaced; None: all). Returns the flat dict described in the module docstring."""
+    n = len(cameras)
+    for name, seq in (("stylized", stylized), ("depths", depths), ("alphas", alphas), ("original", original)):
+        if len(seq) != n:
+            raise ValueError(f"{name} has {len(seq)} entries for {n} cameras")
+    if original_pre_ct is not None and len(original_pre_ct) != n:
+        raise ValueError(f"original_pre_ct has {len(original_pre_ct)} entries for {n} cameras")
+    if lpips is None:
+        from training.reconstruct.lpips import LPIPS
+
+        lpips = LPIPS()
+    if taps is None:
+        taps = VGGTaps(lpips.weights)
+
+    out: dict[str, float | None] = {}
+    for label, gap in (("short", SHORT_GAP), ("long", long_gap)):
+        c = consistency_metrics(stylized, depths, alphas, cameras, order, gap, lpips, max_pairs=max_pairs,
+                                lpips_pairs=lpips_pairs)
+        c = c or {"rmse": None, "lpips": None, "valid_fraction": None, "pairs": 0}
+        out[f"consistency_{label}_rmse"] = c["rmse"]
+        out[f"consistency_{label}_lpips"] = c["lpips"]
+        out[f"consistency_{label}_valid"] = c["valid_fraction"]
+        out[f"consistency_{label}_pairs"] = float(c["pairs"])
+
+    painting_stats: dict[int, dict] = {}
+    per_view = {"stylized": [], "original": [], "pre_ct": []}
+    structure, psnr = [], []
+    for i in style_view_indices(n, style_views):
+        if original[i] is None or (original_pre_ct is not None and original_pre_ct[i] is None):
+            raise ValueError(f"view {i} is a style view: its original (and pre-colour-transfer) render is needed")
+        image = np.asarray(stylized[i])[..., :3]
+        h, w = image.shape[:2]
+        if max(h, w) not in painting_stats:
+            painting_stats[max(h, w)] = taps_stats(taps(painting_for(painting, w, h)))
+        reference = painting_stats[max(h, w)]
+        t_styl, t_orig = taps(image), taps(np.asarray(original[i])[..., :3])
+        per_view["stylized"].append(style_distances(t_styl, reference))
+        per_view["original"].append(style_distances(t_orig, reference))
+        if original_pre_ct is not None:
+            per_view["pre_ct"].append(style_distances(taps(np.asarray(original_pre_ct[i])[..., :3]), reference))
+        structure.append(structure_distance(t_styl, t_orig))
+        psnr.append(blurred_luminance_psnr(image, original[i]))
+    styl = mean_style_distances(per_view["stylized"])
+    orig = mean_style_distances(per_view["original"])
+    pre = mean_style_distances(per_view["pre_ct"]) if original_pre_ct is not None else orig
+    for kind in ("gram", "swd"):
+        for layer in LAYERS:
+            out[f"{kind}_{layer}"] = styl[f"{kind}_{layer}"]
+    for kind in ("gram", "swd"):
+        out[f"{kind}_ratio_pre_ct"] = _ratio(styl, pre, kind)
+        out[f"{kind}_ratio_original"] = _ratio(styl, orig, kind)
+    out["structure_distance"] = float(np.mean(structure))
+    out["luminance_psnr"] = float(np.mean(psnr))
+    return out
+
+
+def _render_all(gaussians, sh, cameras, background, backend, device, mode: str, cancel=None):
+    """[(image (H, W, C), alpha (H, W, 1))] numpy, colours clamped to [0, 1] (not the depth channel)."""
+    from training.core.messages import check_cancel
+    from training.raster.rasterize import rasterize
+
+    g = gaussians
+    dt = g.means.dtype
+    bg = torch.tensor(background, dtype=dt, device=device)
+    out = []
+    with torch.no_grad():
+        means, quats, scales, opacities = g.means.to(device), g.quats.to(device), g.scales.to(device), \
+            g.opacities.to(device)
+        sh = sh.to(device=device, dtype=dt)
+        for cam in cameras:
+            check_cancel(cancel)
+            image, alpha, _ = rasterize(means, quats, scales, opacities, sh,
+                                        torch.as_tensor(cam.world_to_camera, dtype=dt, device=device),
+                                        torch.as_tensor(cam.K, dtype=dt, device=device), cam.width, cam.height,
+                                        sh_degree=g.sh_degree, background=bg, render_mode=mode, backend=backend)
+            image = image.float().cpu()
+            image[..., :3] = image[..., :3].clamp(0, 1)
+            out.append((image.numpy(), alpha.float().cpu().numpy()))
+    return out
+
+
+def measure_stylizer(stylizer, lpips=None, taps: VGGTaps | None = None, original=None, long_gap: int = LONG_GAP,
+                     style_views: int | None = STYLE_VIEWS, max_pairs: int | None = None,
+                     lpips_pairs: int | None = LPIPS_PAIRS, cancel=None) -> dict[str, float | None]:
+    """``measure_images`` for a ``training.stylize.trainer.Stylizer``'s current model at its cameras, trajectory
+    order ``stylizer.order``.
+
+    Renders: the stylized model at every camera ("RGB+ED": colours and expected depth from its own geometry,
+    whatever the stylizer did to it, ``params="all"`` included); at the style views only, the original colours
+    ``stylizer.original_sh`` and those colours after ``stylizer.pre_transform`` (skipped when the colour transfer
+    is off; a selection mask is honoured as the stylizer does), both with the input model's geometry: ``original``'s
+    when given, else ``stylizer.input_gaussians()``'s (the same as the stylized model's unless the stylizer
+    optimised the geometry). ``cancel()`` is asked before each render (Cancelled)."""
+    from training.model.gaussians import Gaussians
+    from training.stylize.color_transfer import apply_to_gaussians
+    from training.stylize.region import keep_unselected
+
+    cfg = stylizer.config
+    g = stylizer.gaussians.detached()
+    cameras = stylizer.cameras
+    if original is None and hasattr(stylizer, "input_gaussians"):
+        original = stylizer.input_gaussians()  # the input geometry, also when the stylizer optimised it
+    geometry = g if original is None else original.detached().to(g.means.device)
+    sh = stylizer.original_sh.detach()
+    if len(geometry) != sh.shape[0]:
+        raise ValueError(f"the original model has {len(geometry)} Gaussians, the stylizer's original colours "
+                         f"{sh.shape[0]}")
+    sh = sh.to(geometry.means.device, geometry.means.dtype)
+    orig_model = Gaussians(means=geometry.means, log_scales=geometry.log_scales, quats=geometry.quats,
+                           opacity_logits=geometry.opacity_logits, sh0=sh[:, :1].contiguous(),
+                           shN=sh[:, 1:].contiguous(), sh_degree=g.sh_degree)
+    args = (cfg.background, cfg.backend, stylizer.device)
+    views = style_view_indices(len(cameras), style_views)
+    few = [cameras[i] for i in views]
+
+    def spread(renders):  # renders of the style views -> a list over every camera, None elsewhere
+        full = [None] * len(cameras)
+        for i, (image, _) in zip(views, renders):
+            full[i] = image
+        return full
+
+    styl = _render_all(g, g.sh, cameras, *args, mode="RGB+ED", cancel=cancel)
+    orig = spread(_render_all(orig_model, orig_model.sh, few, *args, mode="RGB", cancel=cancel))
+    pre = None
+    if stylizer.pre_transform is not None:
+        mask = stylizer.mask
+        moved = keep_unselected(apply_to_gaussians(orig_model, stylizer.pre_transform), orig_model,
+                                None if mask is None else torch.from_numpy(mask))
+        pre = spread(_render_all(moved, moved.sh, few, *args, mode="RGB", cancel=cancel))
+    return measure_images([img[..., :3] for img, _ in styl], [img[..., 3:] for img, _ in styl],
+                          [a for _, a in styl], orig, pre, cameras, stylizer.order, stylizer.style_image,
+                          lpips=lpips, taps=taps, long_gap=long_gap, style_views=style_views, max_pairs=max_pairs,
+                          lpips_pairs=lpips_pairs)
+
+
+def _fmt(value, spec: str) -> str:
+    if value is None or (isinstance(value, float) and math.isnan(value)):
+        return "n/a"
+    if isinstance(value, float) and math.isinf(value):
+        return "inf"
+    return format(value, spec)
+
+
+def summary_line(metrics: dict) -> str:
+    """One readable line: style distance ratio, consistency RMSE and LPIPS (short / long), structure distance,
+    blurred-luminance PSNR."""
+    m = metrics
+    return (f"style distance (SWD) {_fmt(m.get('swd_ratio_pre_ct'), '.2f')}x the unstylized render's; "
+            f"consistency RMSE {_fmt(m.get('consistency_short_rmse'), '.3f')} short / "
+            f"{_fmt(m.get('consistency_long_rmse'), '.3f')} long "
+            f"(LPIPS {_fmt(m.get('consistency_short_lpips'), '.3f')} / "
+            f"{_fmt(m.get('consistency_long_lpips'), '.3f')}); "
+            f"structure distance {_fmt(m.get('structure_distance'), '.3f')}; "
+            f"blurred-luminance PSNR {_fmt(m.get('luminance_psnr'), '.1f')} dB")
