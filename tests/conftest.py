@@ -17,6 +17,8 @@ import zlib
 
 import numpy as np
 import pytest
+
+import training  # noqa: F401  (first: it sets OMP_WAIT_POLICY before torch loads OpenMP; see training/__init__.py)
 import torch
 
 SEED_ENV = "SPLATSTYLER_TEST_SEED"

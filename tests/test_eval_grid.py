@@ -146,7 +146,9 @@ def test_a_record_made_with_other_settings_is_not_done(tmp_path, demo):
 
     grid = load_grid(write_grid(tmp_path, demo))
     job = grid.cells[1]
-    record = {"status": "ok", "job": {"id": job.id, "spec": dict(job.spec)}}
+    from training.evaluate.measure import METRICS_VERSION
+
+    record = {"status": "ok", "job": {"id": job.id, "spec": dict(job.spec)}, "metrics_version": METRICS_VERSION}
     assert is_done(record, job)
     path = tmp_path / "grid.toml"
     path.write_text(path.read_text().replace('loss = "nnfm"', 'loss = "nnfm"\ntau = 0.1'))

@@ -106,11 +106,20 @@ def config_from_args(args: argparse.Namespace):
     return config
 
 
-def measure(stylizer, max_pairs: int = METRIC_PAIRS) -> dict:
-    """The report's metrics (training/evaluate): consistency, style and content of the finished stylization."""
-    from training.evaluate.measure import measure_stylizer
+class Measure:
+    """The report's metrics (training/evaluate): consistency, style and content of the finished stylization;
+    ``version`` goes into the report beside them."""
 
-    return measure_stylizer(stylizer, original=stylizer.input_gaussians(), max_pairs=max_pairs)
+    def __init__(self, max_pairs: int = METRIC_PAIRS):
+        from training.evaluate.measure import METRICS_VERSION
+
+        self.max_pairs = max_pairs
+        self.version = METRICS_VERSION
+
+    def __call__(self, stylizer) -> dict:
+        from training.evaluate.measure import measure_stylizer
+
+        return measure_stylizer(stylizer, original=stylizer.input_gaussians(), max_pairs=self.max_pairs)
 
 
 def run(args: argparse.Namespace) -> int:
@@ -132,8 +141,7 @@ def run(args: argparse.Namespace) -> int:
         report = stylize_to_folder(Path(args.model), Path(args.data), Path(args.style), Path(args.output), config,
                                    vgg_weights=args.vgg_weights, listener=bar, mask=mask,
                                    log=lambda line: print(line, flush=True),
-                                   metrics=None if args.no_metrics else
-                                   lambda stylizer: measure(stylizer, args.metric_pairs))
+                                   metrics=None if args.no_metrics else Measure(args.metric_pairs))
     finally:
         bar.close()
     print(f"stylized {report['num_views']} views in {report['iterations']} iterations "

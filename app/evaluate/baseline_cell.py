@@ -18,7 +18,7 @@ def run_baseline_cell(model: Path, data: Path, painting: Path, out: Path, flags:
     from app.commands.stylize import config_from_args
     from training.core.atomic_write import atomic_open, make_output_dir
     from training.evaluate.baseline_2d import stylize_images_independently
-    from training.evaluate.measure import _render_all, measure_images
+    from training.evaluate.measure import METRICS_VERSION, _render_all, measure_images
     from training.model.ply_io import read_ply
     from training.scene.image_io import write_image
     from training.scene.loader import load_scene
@@ -54,7 +54,7 @@ def run_baseline_cell(model: Path, data: Path, painting: Path, out: Path, flags:
         names.append(name)
     report = {"method": "2d", "model": str(model), "data": str(data), "style": str(painting),
               "config": stylizer.config_dict(), "num_views": len(stylizer.cameras), "renders": names,
-              "metrics": metrics, "time_s": {"total": time.perf_counter() - t0}}
+              "metrics": metrics, "metrics_version": METRICS_VERSION, "time_s": {"total": time.perf_counter() - t0}}
     with atomic_open(out / "report.json", "w") as f:
         json.dump(report, f, indent=2, default=lambda v: None)
         f.write("\n")

@@ -18,6 +18,7 @@ from typing import Any
 
 from app.evaluate.grid import Job, job_dir
 from training.core.atomic_write import atomic_open
+from training.evaluate.measure import METRICS_VERSION
 
 RECON_CHECKPOINT_EVERY = 250
 
@@ -132,6 +133,8 @@ def _cell(job: Job, out: Path, log_path: Path) -> dict[str, Any]:
     spec = job.spec
     spec_path = folder / "job.json"
     fresh = report_path.is_file() and spec_path.is_file() and json.loads(spec_path.read_text()) == spec
+    if fresh and spec["method"] == "2d":  # its saved renders are 8-bit PNGs: measured again only by redoing it
+        fresh = json.loads(report_path.read_text()).get("metrics_version") == METRICS_VERSION
     if not fresh:  # not run yet, interrupted, or run with other settings before the grid file changed
         if spec["method"] == "2d":
             from app.evaluate.baseline_cell import run_baseline_cell
@@ -144,6 +147,19 @@ def _cell(job: Job, out: Path, log_path: Path) -> dict[str, Any]:
         with atomic_open(spec_path, "w") as f:
             json.dump(spec, f, indent=2)
     report = json.loads(report_path.read_text())
+    if report.get("metrics_version") != METRICS_VERSION:
+        # the metrics changed since this cell ran: measure its saved result again
+        if spec["method"] == "2d":
+            raise RuntimeError("unreachable: 2d cells are redone whole")
+        from app.evaluate.remeasure import remeasure
+
+        print(f"measuring again (metrics version {report.get('metrics_version')} -> {METRICS_VERSION})", flush=True)
+        report["metrics"] = remeasure(folder / "point_cloud.ply", recon / "point_cloud.ply", data_path(out, spec),
+                                      Path(spec["painting_path"]), spec["flags"])
+        report["metrics_version"] = METRICS_VERSION
+        with atomic_open(report_path, "w") as f:
+            json.dump(report, f, indent=2, default=lambda v: None)
+            f.write("\n")
     recon_report = json.loads((recon / "report.json").read_text())
     metrics = dict(report.get("metrics") or {})
     for key, value in (report.get("utilisation") or {}).items():
@@ -152,4 +168,5 @@ def _cell(job: Job, out: Path, log_path: Path) -> dict[str, Any]:
     metrics["iterations"] = report.get("iterations")
     for key in ("test_psnr", "test_ssim", "num_gaussians", "aniso_p95", "smax_p95"):
         metrics[f"recon_{key}"] = recon_report.get(key)
-    return {"metrics": metrics, "renders": report.get("renders", []), "folder": str(folder)}
+    return {"metrics": metrics, "metrics_version": report.get("metrics_version"), "renders": report.get("renders", []),
+            "folder": str(folder)}

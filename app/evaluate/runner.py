@@ -24,6 +24,7 @@ from typing import Any, Callable
 
 from app.evaluate.grid import Grid, Job
 from app.evaluate.jobs import run_job
+from training.evaluate.measure import METRICS_VERSION
 from training.core.atomic_write import atomic_open
 from training.core.errors import InputError
 
@@ -46,8 +47,12 @@ def load_results(out: Path, grid: Grid) -> dict[str, dict[str, Any]]:
 
 
 def is_done(result: dict[str, Any] | None, job: Job) -> bool:
-    """A recorded "ok" for this very job: a record made with other settings (the grid file changed) does not count."""
-    return bool(result) and result.get("status") == "ok" and result.get("job", {}).get("spec") == job.spec
+    """A recorded "ok" for this very job: a record made with other settings (the grid file changed), or a cell's
+    made with other metrics, does not count."""
+    if not (result and result.get("status") == "ok" and result.get("job", {}).get("spec") == job.spec):
+        return False
+    # a cell measured by another version of the metrics is measured again (from its saved model)
+    return job.kind != "cell" or result.get("metrics_version") == METRICS_VERSION
 
 
 def _record(out: Path, job: Job, result: dict[str, Any]) -> None:

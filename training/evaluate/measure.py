@@ -42,6 +42,9 @@ from training.evaluate.content_metrics import blurred_luminance_psnr, structure_
 from training.evaluate.style_metrics import mean_style_distances, painting_for, style_distances, taps_stats
 from training.evaluate.vgg_taps import LAYERS, VGGTaps
 
+# Bumped whenever a change alters a metric's value: reports carry it, and `splatstyler eval` measures again the
+# cells whose metrics came from another version (from their saved models, without stylizing again).
+METRICS_VERSION = 1
 SHORT_GAP = 1
 LONG_GAP = 7
 STYLE_VIEWS = 8  # views the style and content metrics look at (evenly spaced over the cameras)

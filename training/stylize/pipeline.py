@@ -127,6 +127,7 @@ def stylize_to_folder(model: Path, data: Path, style: Path, out: Path, config: S
         },
         "utilisation": utilisation,
         "metrics": measured,
+        "metrics_version": getattr(metrics, "version", None) if measured is not None else None,
         "color_transfer": {
             "pre": stylizer.pre_transform.to_dict() if stylizer.pre_transform else None,
             "post": stylizer.post_transform.to_dict() if stylizer.post_transform else None,

@@ -1,0 +1,33 @@
+"""Measure a finished stylization again from its saved model, without stylizing again: what `splatstyler eval` does
+with a cell whose metrics came from another METRICS_VERSION (training/evaluate/measure.py)."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+
+def remeasure(stylized_ply: Path, input_ply: Path, data: Path, painting: Path, flags: list[str]) -> dict:
+    """The metrics of ``stylized_ply`` (a stylization of ``input_ply`` run with the stylize ``flags``): the
+    stylizer is prepared as the run was (cameras, trajectory order, pre colour transfer), its model replaced by the
+    saved one, and measured as the stylize command measures."""
+    from app.cli import build_parser
+    from app.commands.stylize import config_from_args
+    from training.evaluate.measure import measure_stylizer
+    from training.model.ply_io import read_ply
+    from training.scene.loader import load_scene
+    from training.stylize.pipeline import choose_downscale
+    from training.stylize.style_image import load_style_image
+    from training.stylize.trainer import Stylizer
+
+    args = build_parser().parse_args(["stylize", str(input_ply), "--data", str(data), "--style", str(painting),
+                                      "-o", str(stylized_ply.parent), *flags])
+    config = config_from_args(args)
+    original = read_ply(input_ply)
+    scene = load_scene(data, downscale=choose_downscale(data, config.render_max_side))
+    stylizer = Stylizer(original, scene, load_style_image(painting), config, vgg_weights=args.vgg_weights,
+                        model_name=input_ply)
+    stylized = read_ply(stylized_ply)
+    if len(stylized) != len(original):
+        raise ValueError(f"{stylized_ply} has {len(stylized)} Gaussians, its input {input_ply} {len(original)}")
+    stylizer.gaussians = stylized.to(stylizer.device)
+    return measure_stylizer(stylizer, original=original, max_pairs=args.metric_pairs)
