@@ -18,7 +18,7 @@ def run_baseline_cell(model: Path, data: Path, painting: Path, out: Path, flags:
     from app.commands.stylize import config_from_args
     from training.core.atomic_write import atomic_open, make_output_dir
     from training.evaluate.baseline_2d import stylize_images_independently
-    from training.evaluate.measure import METRICS_VERSION, _render_all, measure_images
+    from training.evaluate.measure import METRICS_VERSION, _render_all, measure_images, measure_order
     from training.model.ply_io import read_ply
     from training.scene.image_io import write_image
     from training.scene.loader import load_scene
@@ -44,7 +44,7 @@ def run_baseline_cell(model: Path, data: Path, painting: Path, out: Path, flags:
     stylized = stylize_images_independently(start, style, loss=cfg.loss, vgg=stylizer.vgg,
                                             color_transfer=False)  # the renders already had the stylizer's one
     metrics = measure_images(stylized, [img[..., 3:] for img, _ in renders], [a for _, a in renders], original,
-                             start if stylizer.pre_transform is not None else None, stylizer.cameras, stylizer.order,
+                             start if stylizer.pre_transform is not None else None, stylizer.cameras, measure_order(stylizer),
                              style, max_pairs=args.metric_pairs)
     make_output_dir(out)
     names = []

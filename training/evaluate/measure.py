@@ -5,7 +5,8 @@
 Keys of the dict (None where a metric does not apply):
 
 - ``consistency_short_rmse``, ``consistency_short_lpips``, ``consistency_short_valid``, ``consistency_short_pairs``:
-  the depth-warp consistency (consistency.py) over the pairs of views next to each other in the trajectory order
+  the depth-warp consistency (consistency.py) over the pairs of views next to each other in the cameras' nearest
+  path (``measure_order``: the default trajectory, also for a run that visited the views in another order)
   (RMSE and valid fraction over every pair, LPIPS over ``lpips_pairs`` (8) of them, evenly spaced);
   ``consistency_long_*`` the same for views ``long_gap`` (7) apart, None (pairs 0) when the order has no such pair;
 - ``gram_relu1`` .. ``gram_relu4``, ``swd_relu1`` .. ``swd_relu4``: style distances of the stylized renders to the
@@ -44,7 +45,7 @@ from training.evaluate.vgg_taps import LAYERS, VGGTaps
 
 # Bumped whenever a change alters a metric's value: reports carry it, and `splatstyler eval` measures again the
 # cells whose metrics came from another version (from their saved models, without stylizing again).
-METRICS_VERSION = 1
+METRICS_VERSION = 2  # 2: consistency pairs follow the cameras' nearest path, not the stylization's trajectory
 SHORT_GAP = 1
 LONG_GAP = 7
 STYLE_VIEWS = 8  # views the style and content metrics look at (evenly spaced over the cameras)
@@ -157,11 +158,21 @@ def _render_all(gaussians, sh, cameras, background, backend, device, mode: str, 
     return out
 
 
+def measure_order(stylizer) -> list[int]:
+    """The order whose neighbours the consistency metric compares: the cameras' nearest path (the default
+    trajectory), whatever order the stylization visited them in, so that a run with a random view order is judged
+    on the same pairs of neighbouring views as an ordered one (along its own random trajectory, "neighbours" would
+    be views far apart)."""
+    from training.stylize.view_order import nearest_order
+
+    return nearest_order(stylizer.scene.cameras, stylizer.scene.extent)
+
+
 def measure_stylizer(stylizer, lpips=None, taps: VGGTaps | None = None, original=None, long_gap: int = LONG_GAP,
                      style_views: int | None = STYLE_VIEWS, max_pairs: int | None = None,
                      lpips_pairs: int | None = LPIPS_PAIRS, cancel=None) -> dict[str, float | None]:
     """``measure_images`` for a ``training.stylize.trainer.Stylizer``'s current model at its cameras, trajectory
-    order ``stylizer.order``.
+    pairs along ``measure_order(stylizer)``.
 
     Renders: the stylized model at every camera ("RGB+ED": colours and expected depth from its own geometry,
     whatever the stylizer did to it, ``params="all"`` included); at the style views only, the original colours
@@ -206,7 +217,7 @@ def measure_stylizer(stylizer, lpips=None, taps: VGGTaps | None = None, original
                                 None if mask is None else torch.from_numpy(mask))
         pre = spread(_render_all(moved, moved.sh, few, *args, mode="RGB", cancel=cancel))
     return measure_images([img[..., :3] for img, _ in styl], [img[..., 3:] for img, _ in styl],
-                          [a for _, a in styl], orig, pre, cameras, stylizer.order, stylizer.style_image,
+                          [a for _, a in styl], orig, pre, cameras, measure_order(stylizer), stylizer.style_image,
                           lpips=lpips, taps=taps, long_gap=long_gap, style_views=style_views, max_pairs=max_pairs,
                           lpips_pairs=lpips_pairs)
 
