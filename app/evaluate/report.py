@@ -109,7 +109,8 @@ def check_expectations(group: Group, rows: list[dict], scenes: list[str]) -> lis
             compared += 1
             agree += ok
             clear += is_clear
-            note = "" if not ok else (", clear" if is_clear else ", within the spread")
+            note = "" if not ok else (", clear" if is_clear else
+                                      ", within the spread" if np.isfinite(spread) else ", one cell: no spread")
             # the same seed and painting on both sides share the reconstruction: compare them pair by pair too
             pa = {(r["painting"], r["seed"]): r.get(metric) for r in cells.get((scene, a), [])}
             pb = {(r["painting"], r["seed"]): r.get(metric) for r in cells.get((scene, b), [])}
@@ -182,8 +183,8 @@ def contact_sheet(grid: Grid, out: Path, group: Group, scene: str, results: dict
             row.append(shrink_to(read_image(grid.paintings[painting]), SHEET_CELL))
             rows.append(row)
             labels.append(f"{setting} / {painting}" if len(paintings) > 1 else setting)
-    if not rows:
-        return None
+    if not rows or (len(rows) == 1 and len(group.settings) > 1):
+        return None  # nothing to compare side by side on this scene
     path.parent.mkdir(parents=True, exist_ok=True)
     write_image(path, layout(rows), quality=85)
     return labels
