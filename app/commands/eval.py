@@ -69,7 +69,7 @@ def run(args: argparse.Namespace) -> int:
                 print(f"{state:7s} {job.id}")
         return 0
     make_output_dir(out)
-    command = "splatstyler eval " + Path(args.grid).name
+    command = "splatstyler eval " + str(args.grid)
     if not args.report_only:
         import signal
 
