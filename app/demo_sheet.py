@@ -12,16 +12,13 @@ CELL = 256
 
 
 def render_model(model, camera) -> np.ndarray:
-    """(H, W, 3) float32 render of a Gaussians model at ``camera`` (CPU rasterizer)."""
+    """(H, W, 3) float32 render of a Gaussians model at ``camera``."""
     import torch
 
-    from training.raster.rasterize import rasterize
+    from training.reconstruct.metrics import render_view
 
     with torch.no_grad():
-        image, _, _ = rasterize(model.means, model.quats, model.scales, model.opacities, model.sh,
-                                torch.as_tensor(camera.world_to_camera, dtype=torch.float32),
-                                torch.as_tensor(camera.K, dtype=torch.float32), camera.width, camera.height,
-                                sh_degree=model.sh_degree)
+        image, _, _ = render_view(model, camera)
     return image.clamp(0, 1).numpy()
 
 

@@ -72,3 +72,16 @@ def _seed_test(request, record_property):
     seed_everything(seed)
     record_property("random_seed", seed)
     print(f"random seed {seed} (node id with base {base}; rerun with {SEED_ENV}={base} to reproduce)")
+
+
+@pytest.fixture(scope="session")
+def vgg():
+    """The stylizer's VGG-16 features, loaded once for the whole run (frozen, eval mode: tests share it safely);
+    tests that need it skip when no weights can be had."""
+    from training.core.errors import InputError
+    from training.stylize.vgg_features import load_vgg16_features
+
+    try:
+        return load_vgg16_features()
+    except InputError as exc:  # no cached weights and no registry to fetch them from
+        pytest.skip(f"VGG-16 weights unavailable: {exc}")

@@ -10,7 +10,6 @@ import numpy as np
 import pytest
 import torch
 
-from training.core.errors import InputError
 from training.evaluate.consistency import backward_warp, consistency_metrics, lpips_map, warp_consistency
 from training.evaluate.content_metrics import blurred_luminance_psnr, structure_distance
 from training.evaluate.style_metrics import gram_distance, sliced_wasserstein
@@ -33,16 +32,6 @@ def taps(lpips):
     from training.evaluate.vgg_taps import VGGTaps
 
     return VGGTaps(lpips.weights)
-
-
-@pytest.fixture(scope="module")
-def vgg():
-    from training.stylize.vgg_features import load_vgg16_features
-
-    try:
-        return load_vgg16_features()
-    except InputError as exc:
-        pytest.skip(f"VGG-16 weights unavailable: {exc}")
 
 
 @pytest.fixture(scope="module")

@@ -21,16 +21,6 @@ BACKEND = "auto"  # the product path (numba on CPU); the rasterizer tests hold i
 
 
 @pytest.fixture(scope="module")
-def vgg():
-    from training.stylize.vgg_features import load_vgg16_features
-
-    try:
-        return load_vgg16_features()
-    except InputError as exc:  # no cached weights and no registry to fetch them from
-        pytest.skip(f"VGG-16 weights unavailable: {exc}")
-
-
-@pytest.fixture(scope="module")
 def tiny():
     """4 views of the demo scene at 64x48 and Gaussians (SH degree 1) from its surface points."""
     demo = make_demo_scene(num_views=4, width=64, height=48, num_points=1500, supersample=1)

@@ -19,16 +19,6 @@ BACKEND = "auto"
 
 
 @pytest.fixture(scope="module")
-def vgg():
-    from training.stylize.vgg_features import load_vgg16_features
-
-    try:
-        return load_vgg16_features()
-    except InputError as exc:
-        pytest.skip(f"VGG-16 weights unavailable: {exc}")
-
-
-@pytest.fixture(scope="module")
 def tiny():
     demo = make_demo_scene(num_views=4, width=64, height=48, num_points=1500, supersample=1)
     scene = Scene(cameras=demo.cameras, images=demo.images, points=demo.points, point_colors=demo.point_colors)

@@ -17,23 +17,12 @@ import pytest
 import torch
 
 from assets.demo.scene import make_demo_scene
-from training.core.errors import InputError
 from training.model.gaussian_init import gaussians_from_points
 from training.scene.scene import Scene
 from training.stylize import defaults as D
 from training.stylize.trainer import FIXED_AT_START, GEOMETRY, StylizeConfig, Stylizer
 
 BACKEND = "auto"  # the product path (numba on CPU)
-
-
-@pytest.fixture(scope="module")
-def vgg():
-    from training.stylize.vgg_features import load_vgg16_features
-
-    try:
-        return load_vgg16_features()
-    except InputError as exc:  # no cached weights and no registry to fetch them from
-        pytest.skip(f"VGG-16 weights unavailable: {exc}")
 
 
 @pytest.fixture(scope="module")

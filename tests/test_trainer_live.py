@@ -10,7 +10,6 @@ import pytest
 import torch
 
 from assets.demo.scene import make_demo_scene
-from training.core.errors import InputError
 from training.core.messages import Cancelled, TrainerEvent
 from training.model.gaussian_init import gaussians_from_points
 from training.reconstruct.densify import DensifyConfig
@@ -134,16 +133,6 @@ def test_reconstruct_events_drive_a_progress_count(scene):
 
 
 # ------------------------------------------------------------------------------------------------ stylizer
-@pytest.fixture(scope="module")
-def vgg():
-    from training.stylize.vgg_features import load_vgg16_features
-
-    try:
-        return load_vgg16_features()
-    except InputError as exc:
-        pytest.skip(f"VGG-16 weights unavailable: {exc}")
-
-
 @pytest.fixture(scope="module")
 def tiny():
     demo = make_demo_scene(num_views=4, width=64, height=48, num_points=1500, supersample=1)

@@ -79,8 +79,8 @@ def register(sub: argparse._SubParsersAction) -> None:
                      help="stylize only the Gaussians whose centres lie in this sphere")
     p.add_argument("--invert", action="store_true", help="with --mask/--box/--sphere: stylize the others instead")
     p.add_argument("--metric-pairs", type=int, default=METRIC_PAIRS, metavar="N",
-                   help=f"view pairs per range for the consistency metric, evenly spaced along the trajectory "
-                        f"(default {METRIC_PAIRS})")
+                   help=f"view pairs per range for the consistency metric, evenly spaced along the cameras' "
+                        f"nearest path (default {METRIC_PAIRS})")
     p.add_argument("--no-metrics", action="store_true",
                    help="skip the report's consistency, style and content metrics (docs/evaluation.md)")
     p.set_defaults(func=run)

@@ -14,27 +14,16 @@ from pathlib import Path
 
 
 def run_baseline_cell(model: Path, data: Path, painting: Path, out: Path, flags: list[str]) -> dict:
-    from app.cli import build_parser
-    from app.commands.stylize import config_from_args
+    from app.evaluate.remeasure import prepared_stylizer
     from training.core.atomic_write import atomic_open, make_output_dir
     from training.evaluate.baseline_2d import stylize_images_independently
     from training.evaluate.measure import METRICS_VERSION, _render_all, measure_images, measure_order
-    from training.model.ply_io import read_ply
     from training.scene.image_io import write_image
-    from training.scene.loader import load_scene
-    from training.stylize.pipeline import choose_downscale
-    from training.stylize.style_image import load_style_image
-    from training.stylize.trainer import Stylizer
 
     t0 = time.perf_counter()
-    args = build_parser().parse_args(["stylize", str(model), "--data", str(data), "--style", str(painting),
-                                      "-o", str(out), *flags])
-    config = config_from_args(args)
-    style = load_style_image(painting)
-    gaussians = read_ply(model)
-    scene = load_scene(data, downscale=choose_downscale(data, config.render_max_side))
     # The stylizer only prepares the views: cameras at the stylization size, trajectory order, pre colour transfer.
-    stylizer = Stylizer(gaussians, scene, style, config, vgg_weights=args.vgg_weights, model_name=model)
+    stylizer, args = prepared_stylizer(model, data, painting, flags)
+    style = stylizer.style_image
     cfg = stylizer.config
     g = stylizer.gaussians.detached()
     renders = _render_all(g, g.sh, stylizer.cameras, cfg.background, cfg.backend, stylizer.device, mode="RGB+ED")

@@ -6,26 +6,35 @@ from __future__ import annotations
 from pathlib import Path
 
 
-def remeasure(stylized_ply: Path, input_ply: Path, data: Path, painting: Path, flags: list[str]) -> dict:
-    """The metrics of ``stylized_ply`` (a stylization of ``input_ply`` run with the stylize ``flags``): the
-    stylizer is prepared as the run was (cameras, trajectory order, pre colour transfer), its model replaced by the
-    saved one, and measured as the stylize command measures."""
+def prepared_stylizer(model: Path, data: Path, painting: Path, flags: list[str]):
+    """(Stylizer, parsed stylize args): the stylizer a `splatstyler stylize MODEL --data DATA --style PAINTING
+    FLAGS` run starts from (cameras at the stylization size, trajectory order, pre colour transfer), not stepped."""
     from app.cli import build_parser
     from app.commands.stylize import config_from_args
-    from training.evaluate.measure import measure_stylizer
     from training.model.ply_io import read_ply
     from training.scene.loader import load_scene
     from training.stylize.pipeline import choose_downscale
     from training.stylize.style_image import load_style_image
     from training.stylize.trainer import Stylizer
 
-    args = build_parser().parse_args(["stylize", str(input_ply), "--data", str(data), "--style", str(painting),
-                                      "-o", str(stylized_ply.parent), *flags])
+    args = build_parser().parse_args(["stylize", str(model), "--data", str(data), "--style", str(painting),
+                                      "-o", "unused", *flags])
     config = config_from_args(args)
-    original = read_ply(input_ply)
     scene = load_scene(data, downscale=choose_downscale(data, config.render_max_side))
-    stylizer = Stylizer(original, scene, load_style_image(painting), config, vgg_weights=args.vgg_weights,
-                        model_name=input_ply)
+    stylizer = Stylizer(read_ply(model), scene, load_style_image(painting), config, vgg_weights=args.vgg_weights,
+                        model_name=model)
+    return stylizer, args
+
+
+def remeasure(stylized_ply: Path, input_ply: Path, data: Path, painting: Path, flags: list[str]) -> dict:
+    """The metrics of ``stylized_ply`` (a stylization of ``input_ply`` run with the stylize ``flags``): the
+    stylizer is prepared as the run was, its model replaced by the saved one, and measured as the stylize command
+    measures."""
+    from training.evaluate.measure import measure_stylizer
+    from training.model.ply_io import read_ply
+
+    stylizer, args = prepared_stylizer(input_ply, data, painting, flags)
+    original = read_ply(input_ply)
     stylized = read_ply(stylized_ply)
     if len(stylized) != len(original):
         raise ValueError(f"{stylized_ply} has {len(stylized)} Gaussians, its input {input_ply} {len(original)}")
