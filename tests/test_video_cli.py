@@ -105,7 +105,7 @@ def test_dataset_path_and_errors(demo, tmp_path, capsys):
 def test_cancel_leaves_no_mp4_and_keeps_finished_pngs(demo, tmp_path):
     gl_or_skip()
     from app.camera_path import orbit_path
-    from app.commands.render import load_model_arrays
+    from app.render_inputs import load_model_arrays
     from app.video_output import write_path_video
     from renderer_gl import SplatRenderer, create_context
     from training.core.messages import Cancelled

@@ -36,19 +36,11 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--sh-degree", type=int, default=3, help="SH degree of the colours (default 3)")
 
 
-def _parse_size(text: str) -> tuple[int, int]:
-    try:
-        w, h = (int(v) for v in text.lower().split("x"))
-    except ValueError:
-        raise SystemExit(f"splatstyler: error: --size must look like 512x384, got {text!r}")
-    if w < 1 or h < 1:
-        raise SystemExit(f"splatstyler: error: --size must be positive, got {text!r}")
-    return w, h
-
-
 def run(args: argparse.Namespace) -> list[dict]:
+    from app.render_inputs import parse_size
+
     ns = [args.n] if args.n else list(DEFAULT_NS)
-    sizes = [_parse_size(args.size)] if args.size else list(DEFAULT_SIZES)
+    sizes = [parse_size(args.size)] if args.size else list(DEFAULT_SIZES)
     backends = [b.strip() for b in args.backends.split(",") if b.strip()]
     rows = []
     from tqdm import tqdm

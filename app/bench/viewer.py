@@ -54,15 +54,9 @@ def _median_ms(fn, repeat: int) -> float:
     return 1000.0 * statistics.median(times)
 
 
-def _parse_size(text: str) -> tuple[int, int]:
-    try:
-        w, h = (int(v) for v in text.lower().split("x"))
-    except ValueError:
-        raise SystemExit(f"splatstyler: error: --size must look like 1280x720, got {text!r}") from None
-    return w, h
-
-
 def run(args: argparse.Namespace) -> list[dict]:
+    from app.render_inputs import parse_size
+
     if args.live:
         from app.bench.viewer_live import run_live
 
@@ -75,7 +69,7 @@ def run(args: argparse.Namespace) -> list[dict]:
     from renderer_gl.sort import back_to_front
 
     ns = [int(float(v)) for v in args.n.split(",")] if args.n else list(DEFAULT_NS)
-    w, h = _parse_size(args.size)
+    w, h = parse_size(args.size)
     ctx = create_context(args.backend, require=430 if args.gpu_sort_max > 0 else 330)
     gl_name = context_backend(ctx)
     off = Offscreen(ctx, w, h)

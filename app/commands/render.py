@@ -47,54 +47,6 @@ def register(sub: argparse._SubParsersAction) -> None:
     parser.set_defaults(func=run)
 
 
-def _parse_size(text: str | None):
-    from training.core.errors import InputError
-
-    if text is None:
-        return None
-    try:
-        w, h = (int(v) for v in text.lower().split("x"))
-    except ValueError:
-        raise InputError(None, f"--size must look like 640x480, got {text!r}") from None
-    if not (1 <= w <= 16384 and 1 <= h <= 16384):
-        raise InputError(None, f"--size {text}: each side must be 1..16384 pixels")
-    return w, h
-
-
-def _parse_background(text: str):
-    from training.core.errors import InputError
-
-    try:
-        rgb = tuple(float(v) for v in text.split(","))
-    except ValueError:
-        rgb = ()
-    if len(rgb) != 3 or not all(0.0 <= v <= 1.0 for v in rgb):
-        raise InputError(None, f"--background must be three numbers in 0..1 like 1,1,1, got {text!r}")
-    return rgb
-
-
-def load_model_arrays(path: Path):
-    """(means, scales, quats, opacities, sh, sh_degree) as float32 numpy, activated, from a .ply or .splat."""
-    from app.commands.info import detect_kind
-    from training.core.errors import InputError
-
-    kind = detect_kind(path)
-    if kind == "ply":
-        from training.model.ply_io import read_ply
-
-        g = read_ply(path)
-    elif kind == "splat":
-        from training.model.splat_io import read_splat
-
-        g = read_splat(path)
-    else:
-        raise InputError(path, "is not a Gaussian model file (.ply or .splat)")
-    if len(g) == 0:
-        raise InputError(path, "holds no Gaussians")
-    arrays = [t.detach().float().cpu().numpy() for t in (g.means, g.scales, g.rotations, g.opacities, g.sh)]
-    return (*arrays, g.sh_degree)
-
-
 def _dataset_camera(scene, which: str, data: Path):
     from training.core.errors import InputError
 
@@ -182,10 +134,12 @@ def _write(path: Path, renderer, v, args, background, fbo_cache: dict) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
+    from app.render_inputs import load_model_arrays, parse_background, parse_size
+
     from training.core.errors import InputError
 
-    size = _parse_size(args.size)
-    background = _parse_background(args.background)
+    size = parse_size(args.size)
+    background = parse_background(args.background)
     if args.camera is not None and args.data is None:
         raise InputError(None, "--camera needs --data (the scene whose cameras to use); or use --orbit K")
     if args.orbit is not None and not 1 <= args.orbit <= 10_000:

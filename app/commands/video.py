@@ -89,12 +89,12 @@ def build_path(args: argparse.Namespace, means, opacities, size):
 
 def run(args: argparse.Namespace) -> int:
     from app.camera_path import CameraPath  # noqa: F401  (fail early on a broken install, before the model loads)
-    from app.commands.render import _parse_background, _parse_size, load_model_arrays
+    from app.render_inputs import load_model_arrays, parse_background, parse_size
     from app.video_output import is_video_file, write_path_video
     from training.core.errors import InputError
 
-    size = _parse_size(args.size)
-    background = _parse_background(args.background)
+    size = parse_size(args.size)
+    background = parse_background(args.background)
     out = args.output
     if is_video_file(out):
         if out.is_dir():

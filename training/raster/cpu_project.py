@@ -183,7 +183,6 @@ def _project_bwd(means, quats, scales, view, kmat, width, height, eps2d, radii, 
             t00 = j00 * Sc[0, 0] + j02 * Sc[2, 0]
             t01 = j00 * Sc[0, 1] + j02 * Sc[2, 1]
             t02 = j00 * Sc[0, 2] + j02 * Sc[2, 2]
-            t10 = j11 * Sc[1, 0] + j12 * Sc[2, 0]
             t11 = j11 * Sc[1, 1] + j12 * Sc[2, 1]
             t12 = j11 * Sc[1, 2] + j12 * Sc[2, 2]
             # the conic in float64 (the stored one is float32)

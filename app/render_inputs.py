@@ -1,0 +1,56 @@
+"""The values the render, video and bench commands take from their command lines: an image size, a background
+colour, and a Gaussian model file read into the numpy arrays renderer_gl draws."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+
+def parse_size(text: str | None) -> tuple[int, int] | None:
+    """WxH from --size (None stays None), or an InputError naming the bad value."""
+    from training.core.errors import InputError
+
+    if text is None:
+        return None
+    try:
+        w, h = (int(v) for v in text.lower().split("x"))
+    except ValueError:
+        raise InputError(None, f"--size must look like 640x480, got {text!r}") from None
+    if not (1 <= w <= 16384 and 1 <= h <= 16384):
+        raise InputError(None, f"--size {text}: each side must be 1..16384 pixels")
+    return w, h
+
+
+def parse_background(text: str) -> tuple[float, float, float]:
+    """R,G,B in 0..1 from --background, or an InputError."""
+    from training.core.errors import InputError
+
+    try:
+        rgb = tuple(float(v) for v in text.split(","))
+    except ValueError:
+        rgb = ()
+    if len(rgb) != 3 or not all(0.0 <= v <= 1.0 for v in rgb):
+        raise InputError(None, f"--background must be three numbers in 0..1 like 1,1,1, got {text!r}")
+    return rgb
+
+
+def load_model_arrays(path: Path):
+    """(means, scales, quats, opacities, sh, sh_degree) as float32 numpy, activated, from a .ply or .splat."""
+    from app.commands.info import detect_kind
+    from training.core.errors import InputError
+
+    kind = detect_kind(path)
+    if kind == "ply":
+        from training.model.ply_io import read_ply
+
+        g = read_ply(path)
+    elif kind == "splat":
+        from training.model.splat_io import read_splat
+
+        g = read_splat(path)
+    else:
+        raise InputError(path, "is not a Gaussian model file (.ply or .splat)")
+    if len(g) == 0:
+        raise InputError(path, "holds no Gaussians")
+    arrays = [t.detach().float().cpu().numpy() for t in (g.means, g.scales, g.rotations, g.opacities, g.sh)]
+    return (*arrays, g.sh_degree)
