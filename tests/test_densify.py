@@ -110,6 +110,26 @@ def test_prune_huge_only_after_first_reset_and_opacity_reset():
     _check_optimizer(g, opt)
 
 
+def _screen_pruned(radius_px: int, size: int, prune_screen: float = 0.15) -> int:
+    """How many of one Gaussian (after the first opacity reset) go for its screen radius at a size x size image."""
+    g, opt = _model([[0.01] * 3], [0.5])
+    strat = DensifyStrategy(extent=1.0, num_gaussians=1)
+    cfg = DensifyConfig(start=0, stop=100, interval=5, reset_every=2, reset_opacity=0.5,
+                        prune_screen=prune_screen)
+    info = _info([0.0], [radius_px])
+    for step in range(1, 6):
+        out = strat.step_post_backward(cfg, step, g, opt, info, size, size)
+    return out["pruned"]
+
+
+def test_screen_size_pruning_is_a_fraction_of_the_image():
+    # the same Gaussian seen at 4x the resolution covers 4x the pixels: the decision must not change
+    assert _screen_pruned(20, 100) == 1 and _screen_pruned(80, 400) == 1  # 0.2 of the long side
+    assert _screen_pruned(10, 100) == 0 and _screen_pruned(40, 400) == 0  # 0.1
+    assert _screen_pruned(30, 400) == 0  # 3DGS's fixed 20 px would prune this one
+    assert _screen_pruned(80, 400, prune_screen=0.0) == 0  # 0 switches the rule off
+
+
 def test_max_gaussians_keeps_the_largest_gradients():
     g, opt = _model([[0.005] * 3] * 4, [0.5] * 4)
     strat = DensifyStrategy(extent=1.0, num_gaussians=4)
@@ -127,3 +147,15 @@ def test_nothing_happens_outside_the_window():
         out = strat.step_post_backward(cfg, step, g, opt, _info([HIGH, HIGH], [5, 5]), W, H)
         assert (out["cloned"], out["split"], out["pruned"]) == (0, 0, 0)
     assert len(g) == 2
+
+
+def test_a_checkpoint_with_pixel_radii_does_not_prune_everything_on_resume():
+    strat = DensifyStrategy(extent=1.0, num_gaussians=2)
+    old = {"grad_accum": torch.zeros(2), "count": torch.zeros(2), "max_radii": torch.tensor([12.0, 3.0]),
+           "extent": 1.0}  # as written before the radii became fractions of the long side
+    strat.load_state_dict(old)
+    assert (strat.max_radii == 0).all()
+    strat.max_radii = torch.tensor([0.2, 0.01])
+    again = DensifyStrategy(extent=1.0, num_gaussians=2)
+    again.load_state_dict(strat.state_dict())
+    torch.testing.assert_close(again.max_radii, torch.tensor([0.2, 0.01]))

@@ -96,3 +96,11 @@ def test_bad_input_is_reported_not_raised(tmp_path):
     wait(lambda: not session.running, 60, "the run to fail")
     status = session.status()
     assert status.state == "error" and "nowhere" in status.error and "\n" not in status.error
+
+
+def test_custom_iterations_stretch_the_schedule_as_on_the_cli(scene_dir, tmp_path):
+    # the viewer's "iterations" field must not leave quick's densification window sized for 3000 steps
+    trainer = reconstruct_stage(scene_dir, tmp_path / "r", preset="quick", downscale=4, iterations=1500).build(None)
+    d = trainer.config.densify
+    assert (trainer.config.iterations, d.start, d.stop, d.interval, d.reset_every) == (1500, 75, 750, 50, 450)
+    assert trainer.config.sh_interval == 150

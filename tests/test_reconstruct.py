@@ -49,6 +49,16 @@ def test_defaults_are_the_papers_figures():
             3.5, 0.1, 0.001, 10, 1)
 
 
+def test_with_iterations_stretches_the_schedule_and_leaves_the_preset_alone():
+    quick = ReconstructConfig.from_preset("quick")
+    half = quick.with_iterations(1500)
+    d = half.densify
+    assert (half.iterations, half.sh_interval, d.start, d.stop, d.interval, d.reset_every) == (
+        1500, 150, 75, 750, 50, 450)
+    assert (quick.iterations, quick.densify.stop) == (3000, 1500)  # a copy, not an edit
+    assert quick.with_iterations(3000) == quick
+
+
 def _cfg(**kw):
     base = dict(iterations=300, sh_interval=100, device="cpu",
                 densify=DensifyConfig(start=50, stop=250, interval=50, reset_every=0, max_gaussians=2000))

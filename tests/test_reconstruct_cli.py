@@ -102,6 +102,10 @@ def test_bad_inputs_are_one_line_errors(tmp_path, capsys, no_points_folder):
     rc, cap = _run([no_points_folder, "-o", tmp_path / "o3", "--depth", "mono"], capsys)
     assert rc == 2 and "SfM points" in cap.err and cap.err.count("\n") == 1
     assert not (tmp_path / "o3" / "point_cloud.ply").exists()
+    for flag, value, rule in (("--densify-grad", "0", "positive"), ("--prune-screen", "-0.1", "at least 0")):
+        rc, cap = _run([no_points_folder, "-o", tmp_path / "o4", flag, value], capsys)
+        assert rc == 2 and cap.err.count("\n") == 1 and flag in cap.err and rule in cap.err
+        assert not (tmp_path / "o4").exists()
 
 
 def test_bench_reconstruct_reports_phases(demo_folder, capsys):

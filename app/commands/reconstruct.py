@@ -38,6 +38,12 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--max-gaussians", type=int, default=None, metavar="N",
                    help="cap on the number of Gaussians densification may reach (overrides the preset's: quick "
                         "60000, standard 300000, paper none)")
+    p.add_argument("--densify-grad", type=float, default=None, metavar="G",
+                   help="densify Gaussians whose mean screen-space gradient (NDC units) is at least G (default "
+                        "0.0002, as 3DGS; lower grows more Gaussians)")
+    p.add_argument("--prune-screen", type=float, default=None, metavar="F",
+                   help="after the first opacity reset, prune Gaussians whose screen radius exceeded F x the "
+                        "image's long side (default 0.15; 0 = off)")
     p.add_argument("--depth", choices=("sfm", "mono", "none"), default=None,
                    help="depth targets: sparse SfM depth (default), Depth Anything V2 aligned to SfM, or none. "
                         "With sfm on a scene without SfM points the depth term is switched off, with a warning")
@@ -63,7 +69,7 @@ def _config(args):
 
     cfg = ReconstructConfig.from_preset(args.preset)
     if args.iters is not None:
-        cfg.iterations = args.iters
+        cfg = cfg.with_iterations(args.iters)
     if args.downscale is not None and args.max_side is not None:
         from training.core.errors import InputError
 
@@ -78,6 +84,18 @@ def _config(args):
 
             raise InputError(None, f"--max-gaussians must be at least 1, got {args.max_gaussians}")
         cfg.densify.max_gaussians = args.max_gaussians
+    if args.densify_grad is not None:
+        if not args.densify_grad > 0:
+            from training.core.errors import InputError
+
+            raise InputError(None, f"--densify-grad must be positive, got {args.densify_grad}")
+        cfg.densify.grad_threshold = args.densify_grad
+    if args.prune_screen is not None:
+        if not args.prune_screen >= 0:
+            from training.core.errors import InputError
+
+            raise InputError(None, f"--prune-screen must be at least 0 (0: off), got {args.prune_screen}")
+        cfg.densify.prune_screen = args.prune_screen
     if args.depth is not None:
         cfg.depth = args.depth
     cfg.mono_depth_model = args.mono_depth_model
@@ -93,19 +111,6 @@ def _config(args):
     if args.seed is not None:
         cfg.seed = args.seed
     return cfg
-
-
-def _scale_densify_to_iterations(cfg, preset_iterations: int) -> None:
-    """With --iters differing from the preset, stretch the density-control schedule to match."""
-    if cfg.iterations == preset_iterations:
-        return
-    f = cfg.iterations / preset_iterations
-    d = cfg.densify
-    d.start = max(1, int(round(d.start * f)))
-    d.stop = max(d.start + 1, int(round(d.stop * f)))
-    d.interval = max(1, int(round(d.interval * f)))
-    d.reset_every = max(1, int(round(d.reset_every * f)))
-    cfg.sh_interval = max(1, int(round(cfg.sh_interval * f)))
 
 
 def _one_line_warnings() -> None:
@@ -147,7 +152,6 @@ def run(args) -> int:
             cfg.iterations = args.iters
     else:
         cfg = _config(args)
-        _scale_densify_to_iterations(cfg, ReconstructConfig.from_preset(args.preset).iterations)
     if cfg.iterations < 1:
         raise InputError(None, f"--iters must be at least 1, got {cfg.iterations}")
     if cfg.downscale < 1:

@@ -24,7 +24,11 @@ def reconstruct_stage(data: str | Path, out: str | Path, preset: str = "quick", 
 
         from training.reconstruct.resolution import training_downscale
 
-        cfg = ReconstructConfig.from_preset(preset, **overrides)
+        extra = dict(overrides)
+        iterations = extra.pop("iterations", None)
+        cfg = ReconstructConfig.from_preset(preset, **extra)
+        if iterations is not None:  # as --iters: the schedule stretches with the run
+            cfg = cfg.with_iterations(iterations)
         if downscale is not None:  # an explicit factor wins over the preset's target long side, as on the CLI
             cfg.downscale, cfg.max_side = int(downscale), None
         cfg.downscale = training_downscale(data, cfg.max_side, cfg.downscale)

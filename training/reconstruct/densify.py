@@ -15,8 +15,9 @@ The rules, as in 3DGS (steps count from 1):
   cloned when their largest scale is <= ``percent_dense`` x extent, else split into two samples drawn from the
   Gaussian with scales / 1.6; then Gaussians are pruned when opacity < ``min_opacity``, and, after the first
   opacity reset, when their largest scale exceeds ``prune_world`` x extent or their largest screen radius since
-  the last densification exceeds ``prune_screen_px`` pixels (new Gaussians start at radius 0; 3DGS zeroes every
-  radius there, which makes its screen-size test a no-op);
+  the last densification exceeds ``prune_screen`` x the image's long side (new Gaussians start at radius 0; 3DGS
+  zeroes every radius there, which makes its screen-size test a no-op). The screen limit is a fraction, as gsplat's
+  ``prune_scale2d``, not 3DGS's 20 pixels: a pixel limit prunes more the finer the training images;
 - every ``reset_every`` steps with step < ``stop``, opacities are clamped to at most ``reset_opacity`` and their
   Adam moments zeroed.
 New Gaussians start with zero Adam moments, removed ones take theirs with them (the 3DGS behaviour).
@@ -46,7 +47,7 @@ class DensifyConfig:
     percent_dense: float = 0.01
     min_opacity: float = 0.005
     prune_world: float = 0.1
-    prune_screen_px: float = 20.0
+    prune_screen: float = 0.15  # of the image's long side; 0 = no screen-size pruning
     reset_every: int = 3000
     reset_opacity: float = 0.01
     max_gaussians: int | None = None
@@ -99,12 +100,16 @@ class DensifyStrategy:
 
     def state_dict(self) -> dict:
         return {"grad_accum": self.grad_accum.clone(), "count": self.count.clone(),
-                "max_radii": self.max_radii.clone(), "extent": self.extent}
+                "max_radii": self.max_radii.clone(), "radii_unit": "long_side", "extent": self.extent}
 
     def load_state_dict(self, state: dict) -> None:
         self.grad_accum = state["grad_accum"].clone().to(self.device)
         self.count = state["count"].clone().to(self.device)
         self.max_radii = state["max_radii"].clone().to(self.device)
+        if state.get("radii_unit") != "long_side":
+            # a checkpoint from before the radii were fractions holds pixels, which would prune everything; the
+            # radii restart from zero at every densification anyway
+            self.max_radii.zero_()
         self.extent = float(state["extent"])
 
     @torch.no_grad()
@@ -124,7 +129,8 @@ class DensifyStrategy:
         norm = g.norm(dim=-1)
         self.grad_accum[visible] += norm[visible]
         self.count[visible] += 1
-        self.max_radii[visible] = torch.maximum(self.max_radii[visible], radii[visible].to(self.max_radii.dtype))
+        frac = radii[visible].to(self.max_radii.dtype) / float(max(width, height))
+        self.max_radii[visible] = torch.maximum(self.max_radii[visible], frac)
 
     @torch.no_grad()
     def step_post_backward(self, cfg: DensifyConfig, step: int, model: Gaussians, optimizer: torch.optim.Optimizer,
@@ -181,7 +187,8 @@ class DensifyStrategy:
         remove |= model.opacities.detach() < cfg.min_opacity
         if cfg.reset_every > 0 and step > cfg.reset_every:
             remove |= model.scales.detach().max(dim=1).values > cfg.prune_world * self.extent
-            remove |= max_radii > cfg.prune_screen_px
+            if cfg.prune_screen > 0:
+                remove |= max_radii > cfg.prune_screen
         n_pruned = int(remove.sum()) - n_split
         if bool(remove.any()):
             keep_gaussians(model, optimizer, ~remove)

@@ -116,6 +116,22 @@ class ReconstructConfig:
             raise ValueError(f"unknown preset {name!r}; expected one of {', '.join(PRESETS)}")
         return replace(cfg, **overrides)
 
+    def with_iterations(self, iterations: int) -> "ReconstructConfig":
+        """A copy that runs ``iterations`` steps, with the density-control window and interval, the opacity reset
+        period and the SH interval stretched by iterations / self.iterations, so a shorter or longer run densifies,
+        resets and raises its SH degree at the same fractions of the run as the preset."""
+        cfg = replace(self, densify=replace(self.densify), iterations=int(iterations))
+        if cfg.iterations == self.iterations or self.iterations < 1:
+            return cfg
+        f = cfg.iterations / self.iterations
+        d = cfg.densify
+        d.start = max(1, int(round(d.start * f)))
+        d.stop = max(d.start + 1, int(round(d.stop * f)))
+        d.interval = max(1, int(round(d.interval * f)))
+        d.reset_every = max(1, int(round(d.reset_every * f))) if d.reset_every > 0 else 0
+        cfg.sh_interval = max(1, int(round(cfg.sh_interval * f)))
+        return cfg
+
     def validate(self) -> None:
         """ValueError naming the first setting out of its range."""
         if self.preset not in PRESETS:
@@ -142,6 +158,7 @@ class ReconstructConfig:
                   ("snapshot_every", self.snapshot_every >= 0, "at least 0"),
                   ("densify.interval", d.interval >= 1, "at least 1"),
                   ("densify.grad_threshold", d.grad_threshold > 0, "positive"),
+                  ("densify.prune_screen", d.prune_screen >= 0, "at least 0 (0: off)"),
                   ("densify.reset_every", d.reset_every >= 0, "at least 0 (0: never)"),
                   ("densify.max_gaussians", d.max_gaussians is None or d.max_gaussians >= 1, "at least 1")]
         for name, ok, rule in checks:
