@@ -49,11 +49,13 @@ def test_downscale_creates_then_reuses_images_n(tmp_path):
     full = read_image(tmp_path / "images" / "v0.png")
     assert abs(scene.images[0].mean() - full.mean()) < 0.01
 
-    # reused: not rewritten on the next load
+    # reused: not rewritten on the next load, and the same pixels as the load that built it
     stamp = (cache / "v1.png").stat().st_mtime_ns
     time.sleep(0.01)
-    load_scene(tmp_path, downscale=2)
+    reused = load_scene(tmp_path, downscale=2)
     assert (cache / "v1.png").stat().st_mtime_ns == stamp
+    for a, b in zip(scene.images, reused.images):
+        np.testing.assert_array_equal(a, b)
 
     # out of date (source newer): rebuilt from the new source
     write_image(tmp_path / "images" / "v1.png", np.ones((49, 65, 3), np.float32))

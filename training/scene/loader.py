@@ -213,7 +213,9 @@ def _read_view_image(src: Path, cached: Path, downscale: int) -> tuple[np.ndarra
     small = resize_image(full, *size)
     write_image(cached, small, dtype=_cache_pixel_type(src))
     os.utime(cached)  # the cache must look newer than its source even on coarse-mtime filesystems
-    return (small[..., :3], None) if alpha is None else (small[..., :3], small[..., 3])
+    # the pixels as the cache holds them (8-bit, JPEG-compressed for JPEG sources): the run that builds the cache
+    # must train and score on the same images as every later run (the float resize scored 0.14 dB higher)
+    return read_image_with_alpha(cached)
 
 
 def _cache_pixel_type(src: Path) -> str:
