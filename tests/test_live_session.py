@@ -99,8 +99,8 @@ def test_bad_input_is_reported_not_raised(tmp_path):
 
 
 def test_custom_iterations_stretch_the_schedule_as_on_the_cli(scene_dir, tmp_path):
-    # the viewer's "iterations" field must not leave quick's densification window sized for 3000 steps
-    trainer = reconstruct_stage(scene_dir, tmp_path / "r", preset="quick", downscale=4, iterations=1500).build(None)
+    # the viewer's "iterations" field must not leave quick's densification window sized for 5000 steps
+    trainer = reconstruct_stage(scene_dir, tmp_path / "r", preset="quick", downscale=4, iterations=2500).build(None)
     d = trainer.config.densify
-    assert (trainer.config.iterations, d.start, d.stop, d.interval, d.reset_every) == (1500, 75, 750, 50, 450)
-    assert trainer.config.sh_interval == 150
+    assert (trainer.config.iterations, d.start, d.stop, d.interval, d.reset_every) == (2500, 125, 1250, 84, 750)
+    assert trainer.config.sh_interval == 250

@@ -51,12 +51,12 @@ def test_defaults_are_the_papers_figures():
 
 def test_with_iterations_stretches_the_schedule_and_leaves_the_preset_alone():
     quick = ReconstructConfig.from_preset("quick")
-    half = quick.with_iterations(1500)
+    half = quick.with_iterations(2500)
     d = half.densify
     assert (half.iterations, half.sh_interval, d.start, d.stop, d.interval, d.reset_every) == (
-        1500, 150, 75, 750, 50, 450)
-    assert (quick.iterations, quick.densify.stop) == (3000, 1500)  # a copy, not an edit
-    assert quick.with_iterations(3000) == quick
+        2500, 250, 125, 1250, 84, 750)
+    assert (quick.iterations, quick.densify.stop) == (5000, 2500)  # a copy, not an edit
+    assert quick.with_iterations(5000) == quick
 
 
 def _cfg(**kw):

@@ -10,6 +10,8 @@ writes OUT/contact_sheet.png: photo, reconstruction and stylized render of a few
 
 from __future__ import annotations
 
+DEMO_SCENE_ITERS = 3000
+
 import argparse
 from pathlib import Path
 
@@ -26,7 +28,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--style", default=None, metavar="IMAGE",
                    help="use this painting instead of the generated one")
     p.add_argument("--recon-iters", type=int, default=None, metavar="N",
-                   help="reconstruction iterations (default: the quick preset's)")
+                   help="reconstruction iterations (default: 3000 on the generated scene, else the quick preset's)")
     p.add_argument("--iters-per-view", type=int, default=None, metavar="N",
                    help="stylization iterations per view (default: the quick preset's schedule)")
     p.add_argument("--loss", choices=("ccft", "nnfm", "gram"), default="ccft", help="style loss (default: ccft)")
@@ -63,9 +65,10 @@ def run(args: argparse.Namespace) -> int:
 
     flags = ["--debug"] if getattr(args, "debug", False) else []
     recon = out / "reconstruction"
+    recon_iters = _recon_iters(args, generated_scene)
     steps = [
         ["reconstruct", str(data), "-o", str(recon), "--preset", "quick", "--backend", args.backend]
-        + (["--iters", str(args.recon_iters)] if args.recon_iters else [])
+        + (["--iters", str(recon_iters)] if recon_iters else [])
         # the generated views are already CPU-sized (256x192); the quick preset's downscale is for photos
         + (["--downscale", "1"] if generated_scene else []),
         ["stylize", str(recon / "point_cloud.ply"), "--data", str(data), "--style", str(style),
@@ -88,6 +91,14 @@ def run(args: argparse.Namespace) -> int:
     return 0
 
 
+def _recon_iters(args, generated_scene: bool) -> int | None:
+    """--recon-iters, else 3000 for the generated scene (its 256x192 views are done by then; the quick preset's
+    5000 are sized for ~400 px photos), else None: the preset's."""
+    if args.recon_iters:
+        return args.recon_iters
+    return DEMO_SCENE_ITERS if generated_scene else None
+
+
 def _in_viewer(args, data: Path, style: Path, out: Path, generated_scene: bool) -> int:
     from app.viewer.app import Paths, ViewerApp, run as run_viewer
 
@@ -95,7 +106,7 @@ def _in_viewer(args, data: Path, style: Path, out: Path, generated_scene: bool) 
     if args.iters_per_view:
         overrides["iters_per_view"] = args.iters_per_view
     app = ViewerApp(Paths(data=str(data), style=str(style), out=str(out)), start="demo", preset="quick",
-                    recon_iters=args.recon_iters, downscale=1 if generated_scene else None,
+                    recon_iters=_recon_iters(args, generated_scene), downscale=1 if generated_scene else None,
                     stylize_overrides=overrides)
     print("opening the viewer (close the window to stop; --headless runs in the console)", flush=True)
     run_viewer(app)

@@ -26,7 +26,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("data", metavar="DATA", help="scene: COLMAP folder (images/ + sparse/), or transforms.json")
     p.add_argument("-o", "--output", required=True, metavar="OUT", help="output folder")
     p.add_argument("--preset", choices=PRESETS, default="quick",
-                   help="quick: minutes on a CPU (long side at most 400 px, 3000 iterations); standard: 7000 "
+                   help="quick: minutes on a CPU (long side at most 400 px, 5000 iterations); standard: 7000 "
                         "iterations, long side at most 1000 px; paper: 3DGS's 30k iterations at full resolution, "
                         "for a GPU (default: quick)")
     p.add_argument("--iters", type=int, default=None, metavar="N", help="number of iterations (overrides preset)")
