@@ -10,8 +10,6 @@ writes OUT/contact_sheet.png: photo, reconstruction and stylized render of a few
 
 from __future__ import annotations
 
-DEMO_SCENE_ITERS = 3000
-
 import argparse
 from pathlib import Path
 
@@ -91,9 +89,12 @@ def run(args: argparse.Namespace) -> int:
     return 0
 
 
+# the generated scene's 256x192 views are fitted by the old quick schedule; the preset's 5000 are for ~400 px photos
+DEMO_SCENE_ITERS = 3000
+
+
 def _recon_iters(args, generated_scene: bool) -> int | None:
-    """--recon-iters, else 3000 for the generated scene (its 256x192 views are done by then; the quick preset's
-    5000 are sized for ~400 px photos), else None: the preset's."""
+    """--recon-iters, else DEMO_SCENE_ITERS on the generated scene, else None (the quick preset's)."""
     if args.recon_iters:
         return args.recon_iters
     return DEMO_SCENE_ITERS if generated_scene else None

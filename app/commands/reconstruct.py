@@ -65,14 +65,13 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 
 def _config(args):
+    from training.core.errors import InputError
     from training.reconstruct.trainer import ReconstructConfig
 
     cfg = ReconstructConfig.from_preset(args.preset)
     if args.iters is not None:
         cfg = cfg.with_iterations(args.iters)
     if args.downscale is not None and args.max_side is not None:
-        from training.core.errors import InputError
-
         raise InputError(None, "give --downscale or --max-side, not both")
     if args.downscale is not None:
         cfg.downscale, cfg.max_side = args.downscale, None
@@ -80,20 +79,14 @@ def _config(args):
         cfg.max_side = args.max_side
     if args.max_gaussians is not None:
         if args.max_gaussians < 1:
-            from training.core.errors import InputError
-
             raise InputError(None, f"--max-gaussians must be at least 1, got {args.max_gaussians}")
         cfg.densify.max_gaussians = args.max_gaussians
     if args.densify_grad is not None:
         if not args.densify_grad > 0:
-            from training.core.errors import InputError
-
             raise InputError(None, f"--densify-grad must be positive, got {args.densify_grad}")
         cfg.densify.grad_threshold = args.densify_grad
     if args.prune_screen is not None:
         if not args.prune_screen >= 0:
-            from training.core.errors import InputError
-
             raise InputError(None, f"--prune-screen must be at least 0 (0: off), got {args.prune_screen}")
         cfg.densify.prune_screen = args.prune_screen
     if args.depth is not None:
