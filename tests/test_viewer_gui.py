@@ -1,115 +1,29 @@
 """The viewer, driven through its own window by imgui's Test Engine: the real application, its real panels, a
-real trainer thread. The window opens on GLFW's null platform with an EGL context when there is no display (CI),
-on X11 under a display; both render the whole window off screen or on, and screenshots are checked for content.
-
-Each test runs the window in a fresh subprocess: one GLFW/imgui runner per process, as a user's session has.
+real trainer thread, on GLFW's null platform with an EGL context (no display needed; the whole window renders off
+screen). tests/test_viewer_x11.py runs the same application on X11 under Xvfb and reads what the X server shows.
+Screenshots here come from the test engine (a framebuffer read) and are checked for content.
 """
 
 from __future__ import annotations
 
-import json
-import os
-import subprocess
-import sys
-import textwrap
 from pathlib import Path
 
 import numpy as np
 import pytest
 
-ROOT = Path(__file__).resolve().parents[1]
+from tests.viewer_harness import PRELUDE, check_screenshot, make_demo_scene, run_gui
+
 pytestmark = pytest.mark.slow
 
 
 @pytest.fixture(scope="module")
 def demo_scene(tmp_path_factory):
-    """The generated demo scene (32 views at 256x192, cached between runs), its painting, and a model of it:
-    Gaussians at its surface points (what a reconstruction starts from), opaque enough to cover the views."""
-    import torch
-
-    from assets.demo.assets import demo_assets
-    from training.model.gaussian_init import gaussians_from_points
-    from training.model.ply_io import write_ply
-    from training.scene.loader import load_scene
-
-    assets = demo_assets()
-    scene = load_scene(assets.scene_dir, load_images=False)
-    g = gaussians_from_points(scene.points, scene.point_colors, sh_degree=1)
-    g.opacity_logits = torch.full_like(g.opacity_logits, 2.0)
-    model = tmp_path_factory.mktemp("model") / "model.ply"
-    write_ply(model, g)
-    return assets.scene_dir, assets.style_image, model
+    return make_demo_scene(tmp_path_factory)
 
 
-def run_gui(script: str, tmp_path: Path, timeout: int = 420) -> dict:
-    """Run a viewer test script in its own process; it writes its findings as JSON, which this returns."""
-    result_file = tmp_path / "result.json"
-    env = dict(os.environ, RESULT=str(result_file), OUT=str(tmp_path))
-    code = textwrap.dedent(script)
-    proc = subprocess.run([sys.executable, "-c", code], cwd=ROOT, env=env, capture_output=True, text=True,
-                          timeout=timeout)
-    assert proc.returncode == 0, f"viewer process failed ({proc.returncode}):\n{proc.stdout[-3000:]}\n{proc.stderr[-5000:]}"
-    return json.loads(result_file.read_text())
-
-
-def check_screenshot(path: Path) -> None:
-    """A real frame: not blank, not uniform, many colours (panels, text, splats)."""
-    from training.scene.image_io import read_image
-
-    img = read_image(path)
-    assert img.shape[0] >= 400 and img.shape[1] >= 600
-    assert float(img.std()) > 0.05, "uniform screenshot"
-    colours = len(np.unique((img * 255).astype(np.uint8).reshape(-1, 3), axis=0))
-    assert colours > 200, f"only {colours} colours in the screenshot"
-
-
-PRELUDE = """
-import json, os, time
-import numpy as np
-from pathlib import Path
-from imgui_bundle.immapp import testing
-from app.viewer.app import Paths, ViewerApp
-from app.viewer.platform import choose_platform, prepare_glfw
-
-OUT = Path(os.environ["OUT"])
-found = {}
-
-def runner_params(app):
-    from imgui_bundle import hello_imgui, imgui
-
-    params = app.runner_params()
-
-    def register_tests():  # a training step takes seconds here: the engine's 60 s watchdog would abort the test
-        io = imgui.test_engine.get_io(hello_imgui.get_imgui_test_engine())
-        io.config_watchdog_warning, io.config_watchdog_kill_test, io.config_watchdog_kill_app = 300, 600, 900
-
-    params.callbacks.register_tests = register_tests
-    return params
-
-
-def run(app, test):
-    from imgui_bundle import immapp
-
-    prepare_glfw(choose_platform())
-    testing.run(test_function=test, runner_params=runner_params(app),
-                add_ons_params=immapp.AddOnsParams(with_implot=True))
-
-
-def open_window(ctx, name):
-    # the Edit and Camera path panels start collapsed, as a user first sees them
-    ctx.window_collapse("//" + name, False)
-    ctx.set_ref(name)
-    ctx.yield_(3)  # let the opened window's layout settle before items are aimed at
-
-
-def wait(ctx, condition, seconds, what):
-    t0 = time.time()
-    while not condition():
-        if time.time() - t0 > seconds:
-            raise AssertionError(f"timed out after {seconds} s waiting for {what}")
-        ctx.yield_(2)
-        time.sleep(0.02)
-"""
+@pytest.fixture(autouse=True)
+def null_platform(monkeypatch):
+    monkeypatch.setenv("SPLATSTYLER_VIEWER_PLATFORM", "null")
 
 
 def test_live_stylization_tau_slider_view_order_and_pause(demo_scene, tmp_path):
@@ -123,7 +37,7 @@ def test(ctx):
          "the stylizer to run")
     trainer = app.session.trainer
     found["tau_before"] = trainer.config.tau
-    ctx.set_ref("Style")
+    open_window(ctx, "Style")
     changed_at = app.session.status().step     # steps up to this one finished before the change
     ctx.item_input_value("tau", 0.05)          # the slider, through the UI
     found["tau_in_panel"] = app.stylize_config.tau
@@ -134,19 +48,19 @@ def test(ctx):
     found["loss_tau_after"] = trainer.style_loss.tau
     found["first_step_with_new_tau"] = min(h["step"] for h in list(app.session.history) if new_tau(h))
     found["changed_at"] = changed_at
-    ctx.set_ref("View order")
+    open_window(ctx, "View order")
     ctx.yield_(3)
     found["drawn_order"] = list(app.drawn_order)
     found["trainer_order"] = [item.source_index for item in trainer.trajectory if not item.is_virtual]
     found["capacity_shape"] = list(trainer.capacity_map().shape)
     open_window(ctx, "Edit")
     ctx.item_click("Select in sphere")
-    ctx.set_ref("Style")
+    open_window(ctx, "Style")
     ctx.combo_click("stylize/only the selection")
     ctx.yield_(2)
     found["selected"] = int(app.editor.selected.sum())
     found["mask_is_selection"] = bool(np.array_equal(trainer.mask, app.editor.selected))
-    ctx.set_ref("Training")
+    open_window(ctx, "Training")
     ctx.item_click("Pause")
     wait(ctx, lambda: app.session.status().state == "paused", 30, "the pause")
     paused_step = trainer.iteration

@@ -29,9 +29,43 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.set_defaults(func=run)
 
 
-def run(args: argparse.Namespace) -> int:
-    from app.viewer.app import Paths, ViewerApp, run as run_viewer
+def check_arguments(args: argparse.Namespace) -> None:
+    """What the command line names is checked before a window opens: one line and exit 2 for a missing or wrong
+    file, or for a --run that lacks what it needs."""
+    from pathlib import Path
 
+    from app.commands.info import detect_kind
+    from training.core.errors import InputError
+
+    if args.model and detect_kind(Path(args.model)) == "scene":
+        raise InputError(args.model, "is not a Gaussian model file (.ply or .splat)")
+    if args.data:
+        from training.scene.loader import load_scene
+
+        if not load_scene(args.data, load_images=False).cameras:
+            raise InputError(args.data, "the scene has no cameras")
+    if args.style:
+        from training.stylize.style_image import load_style_image
+
+        load_style_image(args.style)
+    needs = {"reconstruct": ("data",), "stylize": ("model", "data", "style"), "all": ("data", "style")}
+    names = {"model": "MODEL", "data": "--data", "style": "--style"}
+    missing = [names[n] for n in needs.get(args.run, ()) if not getattr(args, n)]
+    if missing:
+        raise InputError(None, f"--run {args.run} needs {' and '.join(missing)}")
+
+
+def run(args: argparse.Namespace) -> int:
+    import sys
+
+    from app.viewer.app import Paths, ViewerApp, run as run_viewer
+    from app.viewer.platform import choose_platform
+
+    check_arguments(args)
+    if choose_platform() == "null":
+        print("splatstyler view: no display, so the window renders off screen where nobody sees it; for a window "
+              "run it on a desktop, over `ssh -X`, or under Xvfb with a VNC server (Ctrl-C or SIGTERM stops and "
+              "saves)", file=sys.stderr)
     start = {"all": "demo"}.get(args.run, args.run)
     app = ViewerApp(Paths(model=args.model, data=args.data, style=args.style, out=args.output), start=start,
                     preset=args.preset, recon_iters=args.iters, downscale=args.downscale)

@@ -1,10 +1,10 @@
-"""The viewer application: one window (imgui-bundle's runner, GLFW 3.5.1, GL 3.3 core) with the 3D view behind
-the panels, a live session beside it, and the state the panels edit.
+"""The viewer application: one window (imgui-bundle's runner, GLFW 3.5.1, GL 3.3 core) with the 3D view as the
+central node of a docked layout (layout.py), a live session beside it, and the state the panels edit.
 
 Per frame: drain the session's messages, take a new model snapshot when one is due (at most every
-``refresh_s`` while training, so drawing does not starve the trainer of the GIL), handle camera input, draw the
-panels. The 3D view redraws only when something it shows changed (see view3d.py), and the runner idles at a low
-frame rate when nothing happens.
+``refresh_s`` while training, so drawing does not starve the trainer of the GIL, and only once the last one has
+been drawn), act on the shortcuts, draw the panels and the view. The 3D view redraws only when something it shows
+changed (see view3d.py), and the runner idles at a low frame rate when nothing happens.
 """
 
 from __future__ import annotations
@@ -21,6 +21,7 @@ from app.viewer.session import LiveSession, SessionMessage
 from training.core.messages import ModelSnapshot, TrainerEvent
 
 IDLE_FPS = 4.0  # frames per second while nothing happens: each frame costs a running trainer CPU time
+IMAGE_SUFFIXES = (".jpg", ".jpeg", ".png", ".exr", ".tif", ".tiff", ".webp", ".bmp")
 MAX_FPS = 30.0  # while the user acts
 MAX_FPS_TRAINING = 12.0  # while the user acts beside a running trainer (each frame is CPU the trainer loses)
 ACTIVE_AFTER_INPUT_S = 0.5
@@ -100,6 +101,15 @@ class ViewerApp(RunsMixin):
         self.order_preview: list | None = None  # (camera index, is_virtual) before a run
         self.screenshot_path: Path | None = None
         self.closed = False
+        self.view_rect = (0, 0, 1, 1)  # where the 3D view is in the window (logical pixels): set as it is drawn
+        self.view_hovered = False
+        self.frame_dt = 0.0
+        self.frames_per_second = 0.0
+        self.shown_step: int | None = None  # the trainer step whose model the view shows
+        self.base_model = ""  # the model as opened or reconstructed: what a stylization starts from
+        self.stylize_runs: list[Path] = []  # each stylization's saved model, in order
+        self.continue_last_run = False
+        self._dropped: list[str] = []
 
     # ------------------------------------------------------------------ messages
     def say(self, line: str) -> None:
@@ -133,6 +143,7 @@ class ViewerApp(RunsMixin):
 
         g = read_splat(p) if p.suffix.lower() == ".splat" else read_ply(p)
         self.source_gaussians = g
+        self.base_model = str(p)
         self.editor = Editor(snapshot_of(g, version=-int(time.time() * 1000) % 1_000_000_000))
         self._editor_shown = None
         self.paths.model = str(p)
@@ -156,6 +167,26 @@ class ViewerApp(RunsMixin):
             self._place_camera()
             self.update_overlays()
         self.say(f"opened {path} ({len(scene.cameras)} cameras)")
+
+    def open_dropped(self, path: str) -> None:
+        """A file or folder dropped on the window: a .ply/.splat opens as the model, an image as the painting, a
+        folder or transforms.json as the dataset."""
+        p = Path(path)
+        suffix = p.suffix.lower()
+        if suffix in (".ply", ".splat"):
+            self.open_model(path)
+        elif suffix in IMAGE_SUFFIXES:
+            self.open_style(path)
+        elif p.is_dir() or p.name == "transforms.json":
+            self.open_data(path)
+        else:
+            raise ValueError(f"{path}: not a model (.ply, .splat), a painting (an image) or a dataset (a folder or "
+                             "transforms.json)")
+
+    def on_drop(self, _window, paths) -> None:
+        """GLFW's drop callback (during its event polling): queued, opened at the next frame."""
+        self._dropped.extend(str(p) for p in paths)
+        self.note_input()
 
     def open_style(self, path: str) -> None:
         from training.stylize.style_image import load_style_image
@@ -238,10 +269,15 @@ class ViewerApp(RunsMixin):
 
         if len(snap) == 0:
             return
+        # the sphere holding most of the splats (stray far ones left out) fills the view's height, seen from a little
+        # above; -y is up, the convention of the COLMAP and OpenCV frames our files use
         center = np.median(snap.means, axis=0).astype(np.float64)
-        spread = float(np.percentile(np.linalg.norm(snap.means - center, axis=1), 90)) or 1.0
-        self.view.camera = ViewerCamera.looking_at(center + np.array([0.0, -0.5, -2.5]) * spread, center,
-                                                   up=(0.0, -1.0, 0.0))
+        radius = float(np.percentile(np.linalg.norm(snap.means - center, axis=1), 80)) or 1.0
+        fov = 50.0
+        distance = 1.15 * radius / np.sin(np.radians(fov) / 2)
+        direction = np.array([0.0, -0.35, -1.0]) / np.linalg.norm([0.0, -0.35, -1.0])
+        self.view.camera = ViewerCamera.looking_at(center + direction * distance, center, up=(0.0, -1.0, 0.0),
+                                                   fov_y_degrees=fov)
         self.view.moved()
 
     def reset_camera(self) -> None:
@@ -279,8 +315,7 @@ class ViewerApp(RunsMixin):
                 elif item.kind == "error":
                     self.fail(item.text)
                 elif item.kind == "saved":
-                    self.paths.model = item.text
-                    self.say(f"saved {item.text}")
+                    self.record_saved(item.stage, item.text)
                 elif item.kind == "state":
                     self.view.dirty |= item.text in ("paused", "finished", "stopped")
                     self._last_snapshot_at = 0.0  # a pause or the end: show the model as it is now
@@ -293,10 +328,14 @@ class ViewerApp(RunsMixin):
         editing_live = getattr(self, "live_editing", False)
         if editing_live and (not self.session.running or self.editor is None):
             self.live_editing = editing_live = False
+        # a new snapshot only once the last one is on screen: each upload spends the view's drawing budget, and
+        # taking one whenever the budget allows would spend it all on uploads and never draw (a frozen view)
         if (self.session.trainer is not None and now - self._last_snapshot_at >= self.refresh_s
-                and (not self.training_now() or self.view.may_draw_now())):
+                and not self.view.dirty and (not self.training_now() or self.view.may_draw_now())):
             snap = self.session.snapshot()
             self._last_snapshot_at = now
+            if snap is not None:
+                self.shown_step = snap.step
             t0 = time.perf_counter()
             shown = snap is not None and self.view.show(snap, 0)
             if self.training_now():
@@ -373,6 +412,11 @@ class ViewerApp(RunsMixin):
         from app.viewer.view3d import View3D
 
         self.ctx = moderngl.create_context(require=330)
+        if self._platform != "null":
+            import glfw
+            from imgui_bundle import glfw_utils
+
+            glfw.set_drop_callback(glfw_utils.glfw_window_hello_imgui(), self.on_drop)
         self.view = View3D(self.ctx)
         renderer = str(self.ctx.info.get("GL_RENDERER", "")).lower()
         self.software_gl = any(name in renderer for name in ("llvmpipe", "softpipe", "swrast"))
@@ -410,49 +454,26 @@ class ViewerApp(RunsMixin):
                 tex.release()
         self.capacity_texture = self.style_texture = None
 
-    def custom_background(self) -> None:
-        from imgui_bundle import imgui
-
-        io = imgui.get_io()
-        size = (int(io.display_size.x * io.display_framebuffer_scale.x),
-                int(io.display_size.y * io.display_framebuffer_scale.y))
-        self.view.draw(size, split_ready=self.original is not None, training=self.training_now())
-        screen = self.ctx.detect_framebuffer()
-        self.view.blit(screen)
-
     def gui(self) -> None:
+        """Hello ImGui's show_gui: everything of a frame but the docked panels and the view, which it draws itself."""
         from imgui_bundle import imgui
 
         from app.viewer import panels
+        from app.viewer.path_panel import step_video
 
         self.frames += 1
         now = time.perf_counter()
-        dt, self._last_frame_time = now - self._last_frame_time, now
+        self.frame_dt, self._last_frame_time = now - self._last_frame_time, now
+        if self.frame_dt > 0:
+            self.frames_per_second = 0.9 * self.frames_per_second + 0.1 / self.frame_dt
+        while self._dropped:
+            path = self._dropped.pop(0)
+            self.guarded(f"open {path}", self.open_dropped, path)
         self.guarded("update", self.sync)
-        span = _span([c.center for c in self.scene.cameras]) if self.scene.cameras else 1.0
-        from app.viewer.edit_panel import handle_gesture
-
-        handle_gesture(self)
-        self.view.handle_input(imgui, min(dt, 0.1), fly_speed=0.5 * span, left_orbits=self.tool == "orbit")
-        if imgui.is_key_pressed(imgui.Key.f1) or (imgui.is_key_pressed(imgui.Key.h)
-                                                  and not imgui.get_io().want_capture_keyboard):
-            self.show_help = not self.show_help
-        if not imgui.get_io().want_capture_keyboard:
-            if imgui.is_key_pressed(imgui.Key.r):
-                self.reset_camera()
-            if imgui.is_key_pressed(imgui.Key.n):
-                self.snap_to_nearest()
-            if imgui.is_key_pressed(imgui.Key.space):
-                (self.session.resume if self.session.status().state == "paused" else self.session.pause)()
-            ctrl = imgui.get_io().key_ctrl
-            if self.editor is not None:
-                if ctrl and imgui.is_key_pressed(imgui.Key.z):
-                    self.editor.undo()
-                elif ctrl and imgui.is_key_pressed(imgui.Key.y):
-                    self.editor.redo()
-                elif imgui.is_key_pressed(imgui.Key.delete):
-                    self.guarded("delete", self.editor.delete)
-        panels.draw_all(self)
+        self.guarded("keys", self.shortcuts)
+        step_video(self)
+        if self.show_help:
+            panels.help_overlay(self)
         io = imgui.get_io()
         training = self.training_now()
         drawable = self.view.needs_draw(training) and (not training or self.view.may_draw_now())
@@ -460,6 +481,57 @@ class ViewerApp(RunsMixin):
                 or any(imgui.is_mouse_down(b) for b in range(3)) or drawable
                 or self.view.flying or (self.video_job is not None and not self.video_job.finished)):
             self.note_input()
+
+    def shortcuts(self) -> None:
+        """Keys act on the key's press event, with the modifiers held at that event (imgui's Shortcut routing), so
+        a quick Ctrl+Z undoes once and a held one does not repeat; plain keys never fire while text is typed."""
+        from imgui_bundle import imgui
+
+        io = imgui.get_io()
+        k, ctrl, shift = imgui.Key, imgui.Key.mod_ctrl.value, imgui.Key.mod_shift.value
+        glob = imgui.InputFlags_.route_global.value
+        if self.editor is not None:
+            if imgui.shortcut(ctrl | k.z.value, glob):
+                self.editor.undo()
+            elif imgui.shortcut(ctrl | k.y.value, glob) or imgui.shortcut(ctrl | shift | k.z.value, glob):
+                self.editor.redo()
+        if imgui.is_key_pressed(k.f1, False):
+            self.show_help = not self.show_help
+        if io.want_text_input or self.editor_shortcut_held():
+            return
+        if imgui.is_key_pressed(k.h, False):
+            self.show_help = not self.show_help
+        if imgui.is_key_pressed(k.r, False):
+            self.reset_camera()
+        if imgui.is_key_pressed(k.n, False):
+            self.snap_to_nearest()
+        if imgui.is_key_pressed(k.space, False) and self.session.running:
+            (self.session.resume if self.session.status().state == "paused" else self.session.pause)()
+        if imgui.is_key_pressed(k.delete, False) and self.editor is not None:
+            self.guarded("delete", self.editor.delete)
+
+    @staticmethod
+    def editor_shortcut_held() -> bool:
+        """Ctrl or Super is down: the keys under them are shortcuts, not camera moves."""
+        from imgui_bundle import imgui
+
+        io = imgui.get_io()
+        return bool(io.key_ctrl or io.key_super)
+
+    def fly_span(self) -> float:
+        return _span([c.center for c in self.scene.cameras]) if self.scene.cameras else 1.0
+
+    def open_from_dialog(self, what: str) -> None:
+        """File menu: a file dialog (where a dialog program exists) for the model, dataset or painting."""
+        from app.viewer.scene_panel import choose_file
+
+        actions = {"model": (self.open_model, ["Gaussians", "*.ply *.splat"]),
+                   "data": (self.open_data, ["Scenes", "transforms.json cameras.bin images.bin"]),
+                   "style": (self.open_style, ["Images", "*.jpg *.jpeg *.png *.exr *.tif"])}
+        action, filters = actions[what]
+        path = choose_file(f"Open {what}", filters)
+        if path:
+            action(path)
 
     def note_input(self) -> None:
         """Something happened that the next frames should answer promptly (input, a picture to draw)."""
@@ -483,24 +555,29 @@ class ViewerApp(RunsMixin):
                 glfw.wait_events_timeout(wait)
         self._frame_start = time.perf_counter()
 
-    def runner_params(self, title: str = "splatstyler", size=(1280, 800)):
+    def runner_params(self, title: str = "splatstyler", size: tuple[int, int] | None = None):
+        """Hello ImGui's parameters: the docked layout, our frame pacing, and the window at the monitor's work area
+        (or ``size``)."""
         from imgui_bundle import hello_imgui
+
+        from app.viewer.layout import configure
+        from app.viewer.platform import choose_platform
 
         rp = hello_imgui.RunnerParams()
         rp.app_window_params.window_title = title
-        rp.app_window_params.window_geometry.size = size
-        rp.ini_disable = True
-        from app.viewer.platform import choose_platform
-
+        if size is None:
+            rp.app_window_params.window_geometry.full_screen_mode = hello_imgui.FullScreenMode.full_monitor_work_area
+        else:
+            rp.app_window_params.window_geometry.size = size
+        rp.app_window_params.restore_previous_geometry = False
         self._platform = choose_platform()
         rp.fps_idling.enable_idling = False  # paced by ``pace`` instead
         rp.fps_idling.vsync_to_monitor = False
         rp.callbacks.after_swap = self.pace
-        rp.imgui_window_params.default_imgui_window_type = hello_imgui.DefaultImGuiWindowType.no_default_window
         rp.callbacks.post_init = self.post_init
         rp.callbacks.before_exit = self.before_exit
-        rp.callbacks.custom_background = self.custom_background
         rp.callbacks.show_gui = self.gui
+        configure(rp, self)
         return rp
 
 

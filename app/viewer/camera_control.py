@@ -46,15 +46,18 @@ class ViewerCamera:
     # ------------------------------------------------------------------ construction
     @classmethod
     def from_dataset(cls, cameras: list[Camera], target: np.ndarray | None = None) -> "ViewerCamera":
-        """At the first dataset camera, looking at ``target`` (default: the point the cameras look at most)."""
+        """At the first dataset camera, looking at ``target`` (default: the point the cameras look at most), upright:
+        the cameras' mean up is up (a photo held at a slant does not tilt the first view)."""
         up = -np.mean([c.camera_to_world[:3, 1] for c in cameras], axis=0)
         if np.linalg.norm(up) < 1e-6:
             up = np.array([0.0, -1.0, 0.0])
-        view = cls.from_camera(cameras[0], up=up)
+        first = cls.from_camera(cameras[0], up=up)
         if target is None:
             target = look_at_point(cameras)
-        view.target_distance = max(float(np.dot(target - view.position, view.forward)), 1e-3)
-        return view
+        if float(np.dot(target - first.position, first.forward)) <= 1e-3:  # the point is behind: keep the photo's
+            first.target_distance = 1.0
+            return first
+        return cls.looking_at(first.position, target, up=up, fov_y_degrees=first.fov_y_degrees)
 
     @classmethod
     def from_camera(cls, camera: Camera, up: np.ndarray | None = None, target_distance: float = 1.0) -> "ViewerCamera":

@@ -17,26 +17,27 @@ GREY = imgui.ImVec4(0.6, 0.6, 0.6, 1.0)
 
 
 def _pixels(app, x: float, y: float) -> tuple[float, float]:
-    """imgui's (logical) mouse position -> pixels of the view's camera (framebuffer pixels)."""
+    """imgui's (logical) mouse position -> pixels of the view's camera (framebuffer pixels from the view's corner)."""
     scale = imgui.get_io().display_framebuffer_scale
-    return x * scale.x, y * scale.y
+    left, top = app.view_rect[:2]
+    return (x - left) * scale.x, (y - top) * scale.y
 
 
 def view_camera(app):
+    """The camera of the picture the view shows (its size in framebuffer pixels)."""
     io = imgui.get_io()
-    w = int(io.display_size.x * io.display_framebuffer_scale.x)
-    h = int(io.display_size.y * io.display_framebuffer_scale.y)
+    w = int(app.view_rect[2] * io.display_framebuffer_scale.x)
+    h = int(app.view_rect[3] * io.display_framebuffer_scale.y)
     return app.view.camera.camera(w, h)
 
 
-def handle_gesture(app) -> None:
-    """With a selection tool chosen, a left drag in the 3D view selects instead of orbiting."""
+def handle_gesture(app, hovered: bool, active: bool) -> None:
+    """With a selection tool chosen, a left drag that starts on the 3D view selects instead of orbiting."""
     if app.tool == "orbit" or app.editor is None or app.view.camera is None:
         app._gesture = []
         return
-    io = imgui.get_io()
     mouse = imgui.get_mouse_pos()
-    if imgui.is_mouse_clicked(imgui.MouseButton_.left) and not io.want_capture_mouse:
+    if imgui.is_mouse_clicked(imgui.MouseButton_.left) and hovered:
         app._gesture = [(mouse.x, mouse.y)]
     elif app._gesture and imgui.is_mouse_down(imgui.MouseButton_.left):
         if (mouse.x, mouse.y) != app._gesture[-1]:
@@ -65,7 +66,7 @@ def select_by_gesture(app, points: list[tuple[float, float]]) -> None:
 
 
 def draw_gesture(app) -> None:
-    draw = imgui.get_foreground_draw_list()
+    draw = imgui.get_window_draw_list()  # the 3D view's own: clipped to it, and redrawn whole every frame
     col = imgui.IM_COL32(255, 200, 60, 230)
     pts = app._gesture
     if app.tool == "rect":
@@ -81,16 +82,6 @@ def draw_gesture(app) -> None:
 
 
 def edit_panel(app) -> None:
-    imgui.set_next_window_pos(imgui.ImVec2(400, 10), imgui.Cond_.first_use_ever)
-    imgui.set_next_window_size(imgui.ImVec2(330, 430), imgui.Cond_.first_use_ever)
-    imgui.set_next_window_collapsed(True, imgui.Cond_.first_use_ever)  # opened when needed: the view comes first
-    expanded, _ = imgui.begin("Edit")
-    if expanded:
-        _edit_contents(app)
-    imgui.end()
-
-
-def _edit_contents(app) -> None:
     ed = app.editor
     if ed is None:
         imgui.text_colored(GREY, "open a model to select and edit it")

@@ -63,13 +63,11 @@ class VideoJob:
 
 
 def path_panel(app) -> None:
-    imgui.set_next_window_pos(imgui.ImVec2(400, 450), imgui.Cond_.first_use_ever)
-    imgui.set_next_window_size(imgui.ImVec2(330, 340), imgui.Cond_.first_use_ever)
-    imgui.set_next_window_collapsed(True, imgui.Cond_.first_use_ever)
-    expanded, _ = imgui.begin("Camera path")
-    if expanded:
-        _contents(app)
-    imgui.end()
+    _contents(app)
+
+
+def step_video(app) -> None:
+    """A video under way renders its next frame (every frame, whether or not the panel is shown)."""
     job = app.video_job
     if job is not None and not job.finished:
         app.guarded("video", job.step)

@@ -10,9 +10,29 @@ from typing import Any
 import numpy as np
 
 
+def next_run_dir(out: Path, name: str = "stylized") -> Path:
+    """``out/stylized`` for the first stylization, then ``stylized_2``, ``stylized_3``...: each run keeps its own
+    output, and none overwrites another (also across sessions writing to the same folder)."""
+    candidate, n = out / name, 1
+    while candidate.exists():
+        n += 1
+        candidate = out / f"{name}_{n}"
+    return candidate
+
+
 class RunsMixin:
     def out_dir(self) -> Path:
         return Path(self.paths.out)
+
+    def record_saved(self, stage: str, path: str) -> None:
+        """A stage saved its model: a reconstruction becomes the model later stylizations start from; a
+        stylization is listed as a run (and starts the next one only when the user asks to continue)."""
+        if stage == "stylize":
+            self.stylize_runs.append(Path(path))
+        else:
+            self.base_model = path
+            self.paths.model = path
+        self.say(f"saved {path}")
 
     def start_reconstruction(self, then_stylize: bool = False) -> None:
         from app.viewer.stages import reconstruct_stage, stylize_stage
@@ -25,7 +45,7 @@ class RunsMixin:
         if then_stylize:
             if self.style_image is None:
                 raise ValueError("open a painting first")
-            stages.append(stylize_stage(self.paths.data, self.paths.style, self.out_dir() / "stylized",
+            stages.append(stylize_stage(self.paths.data, self.paths.style, next_run_dir(self.out_dir()),
                                         config=self._stylize_config_copy()))
         self.original = None
         self.error = ""
@@ -38,10 +58,15 @@ class RunsMixin:
             raise ValueError("open the dataset the model was reconstructed from")
         if self.style_image is None:
             raise ValueError("open a painting first")
-        model = self.paths.model or None
+        # from the model as opened or reconstructed, not the last stylized output (a run on top of a run would
+        # compound the style), unless the user asks to continue the last run
+        if self.continue_last_run and self.stylize_runs:
+            model = str(self.stylize_runs[-1])
+        else:
+            model = self.base_model or self.paths.model or None
         if model is None:
             raise ValueError("open a model (PLY) or reconstruct first")
-        if self.edited():
+        if self.edited() and not (self.continue_last_run and self.stylize_runs):
             from training.model.ply_io import write_ply
 
             # the stylization starts from what the user sees: the model after the deletes and crops
@@ -50,7 +75,7 @@ class RunsMixin:
             write_ply(model, self.edited_gaussians())
         self.original = self.static_model
         self.error = ""
-        self.session.start([stylize_stage(self.paths.data, self.paths.style, self.out_dir() / "stylized",
+        self.session.start([stylize_stage(self.paths.data, self.paths.style, next_run_dir(self.out_dir()),
                                           config=self._stylize_config_copy(), model=model,
                                           mask=self.region_mask())])
 

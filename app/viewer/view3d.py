@@ -94,37 +94,41 @@ class View3D:
         self._full_res_pending = True
         self.dirty = True
 
-    def handle_input(self, imgui, dt: float, fly_speed: float, left_orbits: bool = True) -> None:
-        """Orbit (left drag), pan (right or middle drag), zoom (wheel), fly (WASD, Q/E), roll (Z/C), when the
-        panels do not want the mouse or keyboard."""
+    def handle_mouse(self, imgui, hovered: bool, active: bool, left_orbits: bool = True) -> None:
+        """Orbit (left drag), pan (right or middle drag) from a drag that started on the view; zoom (wheel) over it."""
         if self.camera is None:
             return
         io = imgui.get_io()
-        if not io.want_capture_mouse:
-            dx, dy = io.mouse_delta.x, io.mouse_delta.y
-            if left_orbits and imgui.is_mouse_dragging(imgui.MouseButton_.left) and (dx or dy):
+        dx, dy = io.mouse_delta.x, io.mouse_delta.y
+        if active and (dx or dy):
+            if left_orbits and imgui.is_mouse_dragging(imgui.MouseButton_.left):
                 self.camera.orbit(dx, dy)
                 self.moved()
             elif (imgui.is_mouse_dragging(imgui.MouseButton_.right)
-                  or imgui.is_mouse_dragging(imgui.MouseButton_.middle)) and (dx or dy):
+                  or imgui.is_mouse_dragging(imgui.MouseButton_.middle)):
                 self.camera.pan(dx, dy, max(self._size[1], 1))
                 self.moved()
-            if io.mouse_wheel:
-                self.camera.zoom(io.mouse_wheel)
-                self.moved()
+        if hovered and io.mouse_wheel:
+            self.camera.zoom(io.mouse_wheel)
+            self.moved()
+
+    def handle_keys(self, imgui, dt: float, fly_speed: float, enabled: bool) -> None:
+        """Fly (WASD, Q/E) and roll (Z/C) while a key is held; never while Ctrl or Super is down (Ctrl+Z is undo)."""
         self.flying = False
-        if not io.want_capture_keyboard:
-            k = imgui.Key
-            axis = lambda pos, neg: float(imgui.is_key_down(pos)) - float(imgui.is_key_down(neg))  # noqa: E731
-            forward, right, up = axis(k.w, k.s), axis(k.d, k.a), axis(k.e, k.q)
-            if forward or right or up:
-                self.camera.fly(forward, right, up, fly_speed * dt)
-                self.moved()
-            roll = axis(k.c, k.z)
-            if roll:
-                self.camera.roll(roll * dt)
-                self.moved()
-            self.flying = bool(forward or right or up or roll)
+        io = imgui.get_io()
+        if self.camera is None or not enabled or io.key_ctrl or io.key_super:
+            return
+        k = imgui.Key
+        axis = lambda pos, neg: float(imgui.is_key_down(pos)) - float(imgui.is_key_down(neg))  # noqa: E731
+        forward, right, up = axis(k.w, k.s), axis(k.d, k.a), axis(k.e, k.q)
+        if forward or right or up:
+            self.camera.fly(forward, right, up, fly_speed * dt)
+            self.moved()
+        roll = axis(k.c, k.z)
+        if roll:
+            self.camera.roll(roll * dt)
+            self.moved()
+        self.flying = bool(forward or right or up or roll)
 
     def snap_to(self, camera, cameras) -> None:
         """Put the view at a dataset camera (keeping the orbit centre's distance)."""
@@ -138,6 +142,7 @@ class View3D:
 
     # ------------------------------------------------------------------ drawing
     def _target(self, size: tuple[int, int]):
+        """The offscreen picture at the view's size in framebuffer pixels (it follows the window's resizes)."""
         if size != self._size:
             for obj in (self._fbo, self._texture):
                 if obj is not None:
@@ -181,17 +186,22 @@ class View3D:
         if not moving:
             self._full_res_pending = False
         t0 = time.perf_counter()
-        fbo.use()
-        fbo.clear(*s.background, 1.0)
-        if self.has_model(0):
-            cam = self.camera.camera(*size)
-            split = s.split_position if (s.split and split_ready) else None
-            photo = None if s.photo == "off" else s.photo
-            self.renderer.render(cam, fbo, mode=s.mode, background=s.background, split=split,
-                                 max_sh_degree=s.max_sh_degree, scale=scale, photo=photo,
-                                 photo_alpha=s.photo_alpha, overlays=self.overlays, lod=lod,
-                                 split_left=1)  # slot 1 holds the model before stylization: before | after
-        gl_direct.finish(self.ctx)
+        # the caller (imgui's frame) has its own framebuffer bound: draw into ours, then give its binding back
+        found = self.ctx.detect_framebuffer()
+        try:
+            fbo.use()
+            fbo.clear(*s.background, 1.0)
+            if self.has_model(0):
+                cam = self.camera.camera(*size)
+                split = s.split_position if (s.split and split_ready) else None
+                photo = None if s.photo == "off" else s.photo
+                self.renderer.render(cam, fbo, mode=s.mode, background=s.background, split=split,
+                                     max_sh_degree=s.max_sh_degree, scale=scale, photo=photo,
+                                     photo_alpha=s.photo_alpha, overlays=self.overlays, lod=lod,
+                                     split_left=1)  # slot 1 holds the model before stylization: before | after
+            gl_direct.finish(self.ctx)
+        finally:
+            found.use()
         self.last_frame_s = time.perf_counter() - t0
         if training:
             self._budget -= self.last_frame_s
@@ -209,10 +219,10 @@ class View3D:
         self._budget_at = now
         return self._budget > 0.0
 
-    def blit(self, screen) -> None:
-        """Copy the last picture to the window's framebuffer."""
-        if self._fbo is not None and screen.size == self._size:
-            self.ctx.copy_framebuffer(screen, self._fbo)
+    @property
+    def texture(self):
+        """The last picture (an RGBA8 texture, bottom row first), or None before the first draw."""
+        return self._texture
 
     def read(self) -> np.ndarray | None:
         """(H, W, 3) uint8 of the last picture, top row first."""

@@ -1,0 +1,129 @@
+"""The Style panel: the painting with the live capacity map over it, and the stylization's settings (live where the
+running stylizer takes them, greyed where they shape a run from its start)."""
+
+from __future__ import annotations
+
+import numpy as np
+from imgui_bundle import imgui
+
+from training.stylize import defaults as D
+
+GREY = imgui.ImVec4(0.6, 0.6, 0.6, 1.0)
+# Settings the stylizer fixes when it starts; the panel greys them during a run and says why.
+RESTART = "fixed while a stylization runs: it shapes the run from its first step (stop and start again)"
+
+
+def style_panel(app) -> None:
+    painting(app)
+    cfg = app.stylize_config
+    live = app.session.running and app.session.status().stage == "stylize"
+    regions = ("all", "selection", "unselected")
+    changed, i = imgui.combo("stylize", regions.index(app.style_region), ["every Gaussian", "only the selection",
+                                                                         "all but the selection"])
+    if changed:
+        app.guarded("region", app.set_style_region, regions[i])
+    imgui.set_item_tooltip("the others keep their colours exactly (select in the Edit panel)")
+    losses = list(D.LOSSES)
+    changed, i = imgui.combo("loss", losses.index(cfg.loss), losses)
+    if changed:
+        app.set_stylize(loss=losses[i])
+    # (label, field, min, max, log scale)
+    floats = [("tau", "tau", 0.01, 10.0, True), ("epsilon", "epsilon", 0.005, 0.5, True),
+              ("lambda_guide", "lambda_guide", 0.0, 10.0, False),
+              ("lambda_content", "lambda_content", 0.0, 0.1, False)]
+    for label, name, lo, hi, log in floats:
+        flags = imgui.SliderFlags_.logarithmic if log else 0
+        changed, value = imgui.slider_float(label, float(getattr(cfg, name)), lo, hi, "%.4g", flags)
+        if changed:
+            app.set_stylize(**{name: value})
+    changed, k = imgui.slider_int("K", cfg.k, 1, 64)
+    if changed:
+        app.set_stylize(k=k)
+    changed, value = imgui.slider_float("lambda_style", cfg.style_weight, 0.0, 100.0, "%.3g")
+    if changed:
+        app.set_stylize(lambda_style=value)
+    changed, value = imgui.slider_float("learning rate", cfg.learning_rate, 0.001, 0.1, "%.4f",
+                                        imgui.SliderFlags_.logarithmic)
+    if changed:
+        app.set_stylize(lr=value)
+    per_view = cfg.iters_per_view or 0
+    changed, per_view = imgui.slider_int("iterations per view", per_view, 0, 100,
+                                         "%d" if per_view else "paper's")
+    if changed:
+        app.set_stylize(iters_per_view=per_view or None)
+    imgui.separator_text("Fixed at the start")
+    imgui.begin_disabled(live)
+    presets = list(D.PRESETS)
+    changed, i = imgui.combo("stylize preset", presets.index(cfg.preset), presets)
+    if changed:
+        app.set_stylize(preset=presets[i])
+    imgui.set_item_tooltip(f"paper: the paper's schedule at up to {D.PAPER_MAX_SIDE} px; quick: "
+                           f"{D.QUICK_MAX_SIDE} px renders and {D.QUICK_ITER_FRACTION:g} of the iterations")
+    orders = list(D.VIEW_ORDERS)
+    changed, i = imgui.combo("view order", orders.index(cfg.view_order), orders)
+    if changed:
+        app.set_stylize(view_order=orders[i])
+    changed, n = imgui.slider_int("virtual views", cfg.virtual_views, 0, 4)
+    if changed:
+        app.set_stylize(virtual_views=n)
+    changed, ct = imgui.checkbox("colour transfer", cfg.color_transfer)
+    if changed:
+        app.set_stylize(color_transfer=ct)
+    imgui.end_disabled()
+    if live:
+        imgui.text_colored(GREY, "greyed: " + RESTART)
+    trainer = app.session.trainer
+    if live and trainer is not None:
+        u = trainer.utilisation()
+        if u:
+            imgui.separator_text("Style use (last plan)")
+            imgui.text(f"utilisation {u.get('utilisation', float('nan')):.3f}   "
+                       f"column entropy {u.get('column_entropy', float('nan')):.3f}")
+
+
+def painting(app) -> None:
+    """The painting, with the live capacity map (column mass of the last transport plan) over it."""
+    if app.style_image is None:
+        imgui.text_colored(GREY, "no painting: open one in the Scene panel")
+        return
+    ctx = app.ctx
+    img = app.style_image
+    if app.style_texture is None:
+        rgba = np.concatenate([img, np.ones(img.shape[:2] + (1,), np.float32)], axis=2)
+        app.style_texture = ctx.texture((img.shape[1], img.shape[0]), 4, np.ascontiguousarray(rgba).tobytes(),
+                                        dtype="f4")
+    width = imgui.get_content_region_avail().x
+    size = imgui.ImVec2(width, width * img.shape[0] / img.shape[1])
+    pos = imgui.get_cursor_screen_pos()
+    imgui.image(imgui.ImTextureRef(app.style_texture.glo), size)
+    trainer = app.session.trainer
+    capacity = trainer.capacity_map() if trainer is not None and hasattr(trainer, "capacity_map") else None
+    changed, app.show_capacity = imgui.checkbox("capacity map", getattr(app, "show_capacity", True))
+    if capacity is not None and app.show_capacity:
+        heat = heatmap(capacity)
+        if app.capacity_texture is None or app.capacity_texture.size != (heat.shape[1], heat.shape[0]):
+            if app.capacity_texture is not None:
+                app.capacity_texture.release()
+            app.capacity_texture = ctx.texture((heat.shape[1], heat.shape[0]), 4, dtype="f4")
+        app.capacity_texture.write(np.ascontiguousarray(heat).tobytes())
+        imgui.get_window_draw_list().add_image(imgui.ImTextureRef(app.capacity_texture.glo), pos,
+                                               imgui.ImVec2(pos.x + size.x, pos.y + size.y))
+        imgui.text(f"capacity: {capacity.shape[1]}x{capacity.shape[0]} style features, "
+                   f"max {capacity.max() * capacity.size:.1f}x the fair share")
+
+
+def heatmap(mass: np.ndarray) -> np.ndarray:
+    """(h, w) column mass -> (h, w, 4) RGBA over the painting: red to yellow where a style feature gets more than its
+    fair share (1 / count; log scale up to the map's own maximum, so the most used patterns always stand out),
+    blue where it gets less (fully blue: unused), clear at the fair share. Tau's effect is the balance of the two."""
+    fair = 1.0 / max(mass.size, 1)
+    ratio = mass / fair
+    rgba = np.zeros(mass.shape + (4,), np.float32)
+    over = ratio > 1.0
+    top = max(float(np.log2(max(float(ratio.max()), 1.0))), 0.5)
+    t = np.clip(np.log2(np.maximum(ratio, 1.0)) / top, 0.0, 1.0)
+    rgba[..., 0] = np.where(over, 1.0, 0.1)
+    rgba[..., 1] = np.where(over, t, 0.35)
+    rgba[..., 2] = np.where(over, 0.0, 1.0)
+    rgba[..., 3] = np.where(over, 0.75 * t, 0.6 * np.clip(1.0 - ratio, 0.0, 1.0))
+    return rgba

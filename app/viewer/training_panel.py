@@ -1,0 +1,133 @@
+"""The Training panel: start a reconstruction, a stylization or both; pause, step, stop; how the view shares the CPU
+with the trainer; status, progress and loss curves."""
+
+from __future__ import annotations
+
+import numpy as np
+from imgui_bundle import imgui, implot
+
+RED = imgui.ImVec4(1.0, 0.4, 0.35, 1.0)
+
+
+def training_panel(app) -> None:
+    session = app.session
+    status = session.status()
+    running = session.running
+    imgui.begin_disabled(running)
+    presets = ("quick", "standard", "paper")
+    changed, i = imgui.combo("preset", presets.index(app.preset), list(presets))
+    if changed:
+        app.preset = presets[i]
+    changed, iters = imgui.input_int("iterations (0: preset's)", app.recon_iters or 0, 100, 1000)
+    if changed:
+        app.recon_iters = iters if iters > 0 else None
+    changed, down = imgui.input_int("downscale (0: preset's)", app.downscale or 0)
+    if changed:
+        app.downscale = down if down > 0 else None
+    if imgui.button("Reconstruct"):
+        app.guarded("reconstruct", app.start_reconstruction)
+    imgui.same_line()
+    if imgui.button("Stylize"):
+        app.guarded("stylize", app.start_stylization)
+    imgui.same_line()
+    if imgui.button("Reconstruct + stylize"):
+        app.guarded("run", app.start_reconstruction, then_stylize=True)
+    imgui.begin_disabled(not app.stylize_runs)
+    _, app.continue_last_run = imgui.checkbox("continue the last stylized run", app.continue_last_run)
+    imgui.end_disabled()
+    imgui.set_item_tooltip("off: Stylize starts from the model as opened or reconstructed (runs do not compound); "
+                           "on: from the last run's output")
+    imgui.end_disabled()
+    imgui.begin_disabled(not running or status.state == "paused")
+    if imgui.button("Pause"):
+        session.pause()
+    imgui.end_disabled()
+    imgui.same_line()
+    imgui.begin_disabled(not running or status.state != "paused")
+    if imgui.button("Resume"):
+        session.resume()
+    imgui.end_disabled()
+    imgui.same_line()
+    imgui.begin_disabled(not running)
+    if imgui.button("Step"):
+        session.single_step()
+    imgui.same_line()
+    if imgui.button("Stop"):
+        session.stop()
+    changed, app.pause_at_value = imgui.input_int("pause at", getattr(app, "pause_at_value", 0))
+    if changed:
+        session.pause_at(app.pause_at_value if app.pause_at_value > 0 else None)
+    imgui.end_disabled()
+    changed, share = imgui.slider_float("training share", app.view.settings.training_share, 0.05, 0.95)
+    if changed:
+        app.view.settings.training_share = share
+    imgui.set_item_tooltip("while a trainer runs, the view draws at most (1 - this) of the time: more leaves "
+                           "the trainer more of the CPU, less makes the view smoother")
+    changed, app.refresh_s = imgui.slider_float("view refresh (s)", app.refresh_s, 0.05, 5.0)
+    imgui.set_item_tooltip("how often the view takes the trainer's latest model (each redraw costs it time)")
+    s = app.view.settings
+    changed, s.training_scale = imgui.slider_float("live view resolution", s.training_scale, 0.25, 1.0)
+    app.view.dirty |= changed
+    changed, s.motion_lod = imgui.slider_float("detail while moving", s.motion_lod, 0.05, 1.0)
+    imgui.set_item_tooltip("the share of the Gaussians (the most opaque and largest) drawn while the camera moves")
+
+    imgui.separator_text("Status")
+    line = f"{status.stage or '-'}: {status.state}"
+    if status.total:
+        line += f"  {status.step}/{status.total}"
+    imgui.text(line)
+    m = status.last_metrics
+    bits = [f"{status.steps_per_second:.1f} it/s"]
+    if status.seconds_left is not None and status.state == "running":
+        bits.append(f"{status.seconds_left:.0f} s left")
+    if "num_gaussians" in m:
+        bits.append(f"{int(m['num_gaussians']):,} Gaussians")
+    if "psnr" in m and np.isfinite(m["psnr"]):
+        bits.append(f"PSNR {m['psnr']:.2f}")
+    imgui.text("  ".join(bits))
+    imgui.progress_bar(status.step / status.total if status.total else 0.0, imgui.ImVec2(-1, 0))
+    if app.error:
+        imgui.push_text_wrap_pos(0.0)
+        imgui.text_colored(RED, app.error)
+        imgui.pop_text_wrap_pos()
+    loss_curves(app)
+    if app.stylize_runs:
+        imgui.separator_text("Stylized runs")
+        for path in app.stylize_runs:
+            imgui.text(str(path))
+
+
+CURVES = {"reconstruct": ("loss", "l1", "depth", "shape", "size"),
+          "stylize": ("loss", "style_loss", "content_loss")}
+
+
+def loss_curves(app) -> None:
+    history = list(app.session.history)
+    if len(history) < 2:
+        return
+    stage = app.session.status().stage
+    steps = np.array([h["step"] for h in history], dtype=np.float64)
+    if implot.begin_plot("losses", imgui.ImVec2(-1, 170)):
+        implot.setup_axes("step", "loss")
+        implot.setup_axis_scale(implot.ImAxis_.y1, implot.Scale_.log10)
+        for key in CURVES.get(stage, ("loss",)):
+            ys = np.array([h.get(key, np.nan) for h in history], dtype=np.float64)
+            ys = np.where(ys > 0, ys, np.nan)
+            if np.isfinite(ys).any():
+                implot.plot_line(key, steps, ys)
+        implot.end_plot()
+
+
+def messages_panel(app) -> None:
+    """Every one-line message of the session, newest at the bottom (errors in red), scrolled to the newest."""
+    if not app.messages:
+        imgui.text_disabled("messages from loading, runs and edits appear here")
+        return
+    for msg in app.messages:
+        if msg.startswith("error:"):
+            imgui.text_colored(RED, msg)
+        else:
+            imgui.text_wrapped(msg)
+    if getattr(app, "_messages_seen", 0) != len(app.messages):
+        imgui.set_scroll_here_y(1.0)
+        app._messages_seen = len(app.messages)

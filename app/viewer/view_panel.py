@@ -1,0 +1,57 @@
+"""The 3D view as the central node of the docked layout: the view's picture (an offscreen texture, redrawn only when
+something it shows changed) fills the node, and the mouse and keys over it turn the camera or draw a selection.
+
+Panels dock around it and never cover it, so its rectangle is the part of the window a person sees the scene in:
+the camera's aspect ratio, the selection gestures and the split divider all refer to it.
+"""
+
+from __future__ import annotations
+
+from imgui_bundle import imgui
+
+VIEW_WINDOW = "3D view"
+
+
+def view_window(app) -> None:
+    """The gui function of the central dockable window (it calls begin/end itself: no padding, no scrolling)."""
+    imgui.push_style_var(imgui.StyleVar_.window_padding, imgui.ImVec2(0, 0))
+    flags = (imgui.WindowFlags_.no_scrollbar | imgui.WindowFlags_.no_scroll_with_mouse
+             | imgui.WindowFlags_.no_collapse)
+    visible, _ = imgui.begin(VIEW_WINDOW, None, flags)
+    imgui.pop_style_var()
+    if visible:
+        _contents(app)
+    imgui.end()
+
+
+def _contents(app) -> None:
+    io = imgui.get_io()
+    avail = imgui.get_content_region_avail()
+    origin = imgui.get_cursor_screen_pos()
+    scale = io.display_framebuffer_scale
+    width, height = max(int(avail.x), 1), max(int(avail.y), 1)
+    app.view_rect = (int(origin.x), int(origin.y), width, height)  # window coordinates (logical pixels)
+    size = (max(int(width * scale.x), 1), max(int(height * scale.y), 1))  # framebuffer pixels
+    view = app.view
+    view.draw(size, split_ready=app.original is not None, training=app.training_now())
+    texture = view.texture
+    if texture is not None and texture.size == size:
+        # GL textures start at the bottom row: flip v so the picture stands upright
+        imgui.image(imgui.ImTextureRef(texture.glo), imgui.ImVec2(width, height), imgui.ImVec2(0, 1),
+                    imgui.ImVec2(1, 0))
+        imgui.set_cursor_screen_pos(origin)
+    buttons = (imgui.ButtonFlags_.mouse_button_left | imgui.ButtonFlags_.mouse_button_right
+               | imgui.ButtonFlags_.mouse_button_middle)
+    imgui.invisible_button("3d view canvas", imgui.ImVec2(width, height), buttons)
+    hovered, active = imgui.is_item_hovered(), imgui.is_item_active()
+    app.view_hovered = hovered or active
+    from app.viewer.edit_panel import handle_gesture
+
+    handle_gesture(app, hovered, active)
+    span = app.fly_span()
+    view.handle_mouse(imgui, hovered, active, left_orbits=app.tool == "orbit")
+    if not app.editor_shortcut_held():
+        view.handle_keys(imgui, min(app.frame_dt, 0.1), fly_speed=0.5 * span,
+                         enabled=not io.want_text_input and (imgui.is_window_focused() or hovered))
+    else:
+        view.flying = False

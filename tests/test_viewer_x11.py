@@ -1,0 +1,146 @@
+"""The viewer as a person at a desktop sees it: the real application on GLFW's X11 platform under an X server
+(Xvfb), driven by imgui's Test Engine, with every check made on the pixels the X server shows (python-xlib's
+``get_image`` of the root window), never on a GL framebuffer read. The null-platform tests
+(tests/test_viewer_gui.py) read the bound framebuffer instead, which is how a black window once passed them.
+"""
+
+from __future__ import annotations
+
+import pickle
+
+import numpy as np
+import pytest
+
+from tests.viewer_harness import PRELUDE, Xvfb, check_frame, make_demo_scene, run_gui, xvfb_missing
+
+pytestmark = [pytest.mark.slow, pytest.mark.skipif(bool(xvfb_missing()), reason=xvfb_missing() or "ok")]
+
+SCREEN = (1400, 900)
+
+
+@pytest.fixture(scope="module")
+def demo_scene(tmp_path_factory):
+    return make_demo_scene(tmp_path_factory)
+
+
+@pytest.fixture(scope="module")
+def x_server():
+    server = Xvfb(SCREEN).start()
+    yield server
+    server.stop()
+
+
+def x11_env(server) -> dict:
+    return {"DISPLAY": server.display, "SPLATSTYLER_VIEWER_PLATFORM": "x11"}
+
+
+def psnr(a: np.ndarray, b: np.ndarray) -> float:
+    mse = float(np.mean((a.astype(np.float64) - b.astype(np.float64)) ** 2))
+    return 99.0 if mse == 0 else 10 * np.log10(255.0 ** 2 / mse)
+
+
+def headless_render(model, camera) -> np.ndarray:
+    """The same camera through renderer_gl on a standalone (EGL/OSMesa) context: what the view must show."""
+    from app.render_inputs import load_model_arrays
+    from renderer_gl import Offscreen, SplatRenderer, create_context
+
+    ctx = create_context()
+    try:
+        renderer = SplatRenderer(ctx, sort_tolerance_deg=0.0)
+        renderer.set_splats(*load_model_arrays(model))
+        off = Offscreen(ctx, camera.width, camera.height)
+        renderer.render(camera, off.fbo, mode="color", background=(0.0, 0.0, 0.0), max_sh_degree=3)
+        img = off.read()
+        renderer.release()
+        return img
+    finally:
+        ctx.release()
+
+
+LOOK = """
+def view_region(screen):
+    ox, oy = window_origin()
+    x, y, w, h = app.view_rect
+    return screen[oy + y: oy + y + h, ox + x: ox + x + w]
+
+def still_frame(ctx):
+    # the full-resolution picture, drawn and presented: camera settled, nothing pending, a few frames swapped
+    app.view.moved()
+    settle(ctx, 0.6)
+    wait(ctx, lambda: not app.view.needs_draw(False), 60, "the still view")
+    settle(ctx, 0.5)
+
+def record(name, ctx):
+    still_frame(ctx)
+    screen = x_screen()
+    region = view_region(screen)
+    np.save(OUT / f"{name}_screen.npy", screen)
+    np.save(OUT / f"{name}_region.npy", region)
+    with open(OUT / f"{name}_camera.pkl", "wb") as f:
+        pickle.dump(app.view.camera.camera(region.shape[1], region.shape[0]), f)
+    found[name] = {"rect": list(app.view_rect), "origin": list(window_origin())}
+"""
+
+
+def test_x11_view_shows_the_model_after_resize_help_and_selection(demo_scene, x_server, tmp_path):
+    scene_dir, _, model = demo_scene
+    found = run_gui(PRELUDE + LOOK + f"""
+import pickle
+import glfw
+from imgui_bundle import glfw_utils, imgui
+app = ViewerApp(Paths(model={str(model)!r}, data={str(scene_dir)!r}, out=str(OUT / "out")))
+
+def test(ctx):
+    wait(ctx, lambda: app.view is not None and app.view.has_model(0), 60, "the model")
+    open_window(ctx, "Scene")
+    ctx.item_click("frustums")          # the headless reference has no camera frustums
+    ctx.item_click("stylization path")
+    record("opened", ctx)
+    # a smaller window: the view follows the framebuffer, panels follow the window's edges
+    glfw.set_window_size(glfw_utils.glfw_window_hello_imgui(), 1100, 700)
+    settle(ctx, 1.0)
+    record("resized", ctx)
+    # the help overlay, opened and closed with its key: nothing of it may stay on screen
+    ctx.set_ref("")
+    ctx.key_press(imgui.Key.h)
+    settle(ctx, 0.5)
+    found["help_shown"] = app.show_help
+    ctx.key_press(imgui.Key.h)
+    record("help_closed", ctx)
+    # a rectangle selection dragged across the view and cleared: no trail of rectangles
+    x, y, w, h = app.view_rect
+    app.tool = "rect"
+    ctx.mouse_move_to_pos(imgui.ImVec2(x + w * 0.3, y + h * 0.3))
+    ctx.mouse_down(0)
+    for t in np.linspace(0.3, 0.7, 8):
+        ctx.mouse_move_to_pos(imgui.ImVec2(x + w * t, y + h * t))
+    ctx.mouse_up(0)
+    found["selected_by_drag"] = int(app.editor.selected.sum())
+    app.tool = "orbit"
+    app.editor.select_none()
+    record("after_drag", ctx)
+
+run(app, test)
+found["error"] = app.error
+Path(os.environ["RESULT"]).write_text(json.dumps(found))
+""", tmp_path, env=x11_env(x_server))
+    assert found["error"] == "", found["error"]
+    assert found["help_shown"] is True
+    for name in ("opened", "resized", "help_closed", "after_drag"):
+        region = np.load(tmp_path / f"{name}_region.npy")
+        with open(tmp_path / f"{name}_camera.pkl", "rb") as f:
+            camera = pickle.load(f)
+        reference = headless_render(model, camera)
+        assert region.shape == reference.shape
+        assert float(reference.std()) > 5, "the reference render is empty: the camera does not see the model"
+        value = psnr(region, reference)
+        assert value >= 25.0, f"{name}: the view on the X screen is not the model's render (PSNR {value:.1f} dB)"
+        screen = np.load(tmp_path / f"{name}_screen.npy")
+        ox, oy = found[name]["origin"]
+        x, y, w, h = found[name]["rect"]
+        outside = screen.copy()
+        outside[oy + y: oy + y + h, ox + x: ox + x + w] = 0
+        check_frame(outside)  # the panels are drawn beside the view
+    opened, resized = found["opened"]["rect"], found["resized"]["rect"]
+    assert resized[2] < opened[2] and resized[3] < opened[3]  # the view follows the window down in size
+    assert found["selected_by_drag"] > 0
