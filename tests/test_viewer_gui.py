@@ -210,3 +210,79 @@ Path(os.environ["RESULT"]).write_text(json.dumps(found))
         frames = [np.asarray(frame) for frame in reader]
     assert len(frames) == 12 and frames[0].shape == (64, 96, 3)
     assert float(np.std(frames[0])) > 2.0  # the scene, not a blank frame
+
+
+def test_edits_sliders_masks_and_exports_never_race_the_running_trainer(demo_scene, tmp_path):
+    """200 random actions from the UI thread while the stylizer steps: deletions of random spheres on the running
+    model, tau and lambda sliders, the stylization's region, exports. Every change reaches the trainer between two
+    steps, so nothing raises, every export is a whole model, and the final model is the edits applied in order."""
+    scene_dir, style, model = demo_scene
+    found = run_gui(PRELUDE + f"""
+import random
+from app.viewer import export_panel
+from app.viewer.selection import in_sphere
+app = ViewerApp(Paths(model={str(model)!r}, data={str(scene_dir)!r}, style={str(style)!r}, out=str(OUT / "out")),
+                start="stylize", stylize_overrides={{"max_side": 48, "iters_per_view": 200}})
+rng = random.Random(7)
+
+def test(ctx):
+    wait(ctx, lambda: app.session.status().state == "running" and app.session.status().step >= 2, 180,
+         "the stylizer to run")
+    app.edit_live()
+    found["n0"] = app.editor.count
+    counts = {{"delete": 0, "slider": 0, "region": 0, "export": 0}}
+    for i in range(200):
+        what = rng.choice(["delete", "slider", "slider", "region", "export"])
+        ed = app.editor
+        if what == "delete" and ed.count > 500:
+            centre = ed.model.means[rng.randrange(ed.count)]
+            ed.select(in_sphere(ed.model.means, centre, 0.3), "set")
+            if ed.selected.any():
+                ed.delete()
+        elif what == "slider":
+            app.set_stylize(tau=rng.uniform(0.05, 2.0), lambda_content=rng.uniform(0.0, 0.05))
+        elif what == "region":
+            ed.select(in_sphere(ed.model.means, ed.model.means[rng.randrange(ed.count)], 1.0), "set")
+            app.set_style_region(rng.choice(["all", "selection", "unselected"]))
+        else:
+            app.export_settings["path"] = str(OUT / "exports" / f"export_{{i:03d}}.ply")
+            export_panel.write(app)
+        counts[what] += 1
+        ctx.yield_(1)
+    wait(ctx, lambda: not app.pending, 120, "the trainer to take every change")
+    found["counts"] = counts
+    found["index"] = app.editor.index.tolist()
+    found["step_at_end"] = app.session.status().step
+    app.session.pause()
+    wait(ctx, lambda: app.session.status().state == "paused", 60, "the pause")
+    final = app.session.trainer.stylized_gaussians()
+    found["final_means"] = final.means.detach().numpy().tolist()
+    found["final_sh_finite"] = bool(np.isfinite(final.sh.detach().numpy()).all())
+
+run(app, test)
+found["error"] = app.error
+found["messages"] = [m for m in app.messages if m.startswith("error")]
+found["exports"] = [str(p) for p in app.exports]
+Path(os.environ["RESULT"]).write_text(json.dumps(found))
+""", tmp_path, timeout=600)
+    from training.model.ply_io import read_ply
+
+    assert found["error"] == "" and not found["messages"], (found["error"], found["messages"])
+    assert all(found["counts"][k] > 10 for k in ("delete", "slider", "region", "export")), found["counts"]
+    source = read_ply(model).means.numpy()
+    rows = {tuple(r) for r in source.tolist()}
+    index = np.array(found["index"])
+    assert len(index) < found["n0"]  # the deletions happened
+    # the model at the end is exactly the source minus every deletion, in order (colour-only: means do not move)
+    assert np.array_equal(np.array(found["final_means"], dtype=np.float32), source[index])
+    assert found["final_sh_finite"]
+    assert len(found["exports"]) == found["counts"]["export"]
+    last = None
+    for path in found["exports"]:
+        g = read_ply(path)
+        means = g.means.numpy()
+        assert len(means) == len(g.sh) == len(g.opacity_logits) > 0
+        assert np.isfinite(means).all() and np.isfinite(g.sh.numpy()).all()
+        assert all(tuple(r) in rows for r in means.tolist())  # whole Gaussians of the source, never a mix
+        assert last is None or len(means) <= last  # deletions only ever shrink the model
+        last = len(means)

@@ -144,3 +144,60 @@ Path(os.environ["RESULT"]).write_text(json.dumps(found))
     opened, resized = found["opened"]["rect"], found["resized"]["rect"]
     assert resized[2] < opened[2] and resized[3] < opened[3]  # the view follows the window down in size
     assert found["selected_by_drag"] > 0
+
+
+def test_x11_live_stylization_shows_the_painting_takes_the_slider_and_refreshes(demo_scene, x_server, tmp_path):
+    scene_dir, style, model = demo_scene
+    found = run_gui(PRELUDE + LOOK + f"""
+app = ViewerApp(Paths(model={str(model)!r}, data={str(scene_dir)!r}, style={str(style)!r}, out=str(OUT / "out")),
+                start="stylize", stylize_overrides={{"max_side": 64, "iters_per_view": 30}})
+
+def region(screen, rect):
+    ox, oy = window_origin()
+    x, y, w, h = rect
+    return screen[oy + y: oy + y + h, ox + x: ox + x + w]
+
+def test(ctx):
+    wait(ctx, lambda: app.session.status().state == "running" and app.session.status().step >= 2, 180,
+         "the stylizer to run")
+    app.refresh_s = 0.5
+    wait(ctx, lambda: app.shown_step is not None, 60, "the first live model on screen")
+    settle(ctx, 0.5)
+    first_step, first = app.shown_step, view_region(x_screen())
+    open_window(ctx, "Style")
+    ctx.item_input_value("tau", 0.05)          # the slider, through the UI
+    new_tau = lambda h: abs(h.get("tau", 0.0) - 0.05) < 1e-6
+    wait(ctx, lambda: any(new_tau(h) for h in list(app.session.history)), 90, "a step that used the new tau")
+    found["tau_after"] = app.session.trainer.config.tau
+    wait(ctx, lambda: app.shown_step >= first_step + 40, 180, "the view to show 40 steps later")
+    settle(ctx, 0.5)
+    later = view_region(x_screen())
+    found["view_change"] = float(np.abs(later.astype(float) - first.astype(float)).mean())
+    found["view_std"] = float(later.std())
+    ctx.item_click("capacity map")             # off: the painting alone
+    settle(ctx, 0.5)
+    np.save(OUT / "painting_plain.npy", region(x_screen(), app.painting_rect))
+    ctx.item_click("capacity map")             # on again: the map over it
+    settle(ctx, 0.5)
+    np.save(OUT / "painting_map.npy", region(x_screen(), app.painting_rect))
+    found["capacity_shape"] = list(app.session.trainer.capacity_map().shape)
+
+run(app, test)
+found["error"] = app.error
+Path(os.environ["RESULT"]).write_text(json.dumps(found))
+""", tmp_path, env=x11_env(x_server))
+    from training.stylize.style_image import load_style_image
+
+    assert found["error"] == "", found["error"]
+    assert found["tau_after"] == pytest.approx(0.05, abs=1e-6)
+    assert found["view_std"] > 5, "the 3D view on screen is empty while stylizing"
+    assert found["view_change"] > 0.5, "the 3D view on screen did not change while the stylizer ran"
+    plain = np.load(tmp_path / "painting_plain.npy")
+    with_map = np.load(tmp_path / "painting_map.npy")
+    painting = load_style_image(style)
+    h, w = plain.shape[:2]
+    rows = (np.arange(h) * painting.shape[0] / h).astype(int)
+    cols = (np.arange(w) * painting.shape[1] / w).astype(int)
+    expected = (painting[rows][:, cols] * 255).round()
+    assert psnr(plain, expected) >= 20.0, "the Style panel does not show the painting"
+    assert float(np.abs(with_map.astype(float) - plain.astype(float)).mean()) > 3.0, "no capacity map drawn"

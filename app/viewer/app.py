@@ -110,6 +110,8 @@ class ViewerApp(RunsMixin):
         self.stylize_runs: list[Path] = []  # each stylization's saved model, in order
         self.continue_last_run = False
         self._dropped: list[str] = []
+        self.exports: list[Path] = []  # files the export dialog wrote, in order
+        self.pending: list = []  # (what, Future, on done): changes and reads handed to the running trainer
 
     # ------------------------------------------------------------------ messages
     def say(self, line: str) -> None:
@@ -220,10 +222,39 @@ class ViewerApp(RunsMixin):
         trainer = self.session.trainer
         if trainer is None or not hasattr(trainer, "keep") or not self.session.running:
             raise ValueError("no running trainer to edit")
-        self.editor = Editor(trainer.snapshot(), on_keep=trainer.keep)
+        self.editor = Editor(trainer.snapshot(), on_keep=self._keep_live)
         self.source_gaussians = None
         self.live_editing = True
         self.say("editing the running trainer's model: deletions and crops apply to it and cannot be undone")
+
+    def _keep_live(self, keep: np.ndarray, structure_version: int) -> None:
+        """A deletion or crop of the running trainer's model, applied between two of its steps, and only to the
+        Gaussians the selection was made on (densification in between would shift the rows)."""
+        keep = np.array(keep, dtype=bool)
+
+        def apply(trainer):
+            if trainer.structure_version != structure_version:
+                raise ValueError("the trainer changed its Gaussians since the selection was made: select again")
+            trainer.keep(keep)
+
+        self.submit_to_trainer("delete", apply)
+
+    def submit_to_trainer(self, what: str, fn, done=None) -> None:
+        """``fn(trainer)`` on the training thread between steps (session.submit); its error, or ``done(result)``,
+        comes back at a later frame."""
+        self.pending.append((what, self.session.submit(fn), done))
+
+    def _finish_pending(self) -> None:
+        still = []
+        for what, future, done in self.pending:
+            if not future.done():
+                still.append((what, future, done))
+            elif future.exception() is not None:
+                exc = future.exception()
+                self.fail(f"{what}: {exc}")
+            elif done is not None:
+                self.guarded(what, done, future.result())
+        self.pending = still
 
     def edited(self) -> bool:
         return self.editor is not None and (len(self.editor.index) != len(self.source_gaussians)
@@ -324,6 +355,7 @@ class ViewerApp(RunsMixin):
                     self.update_overlays()
                 elif item.kind == "warning":
                     self.say(f"warning: {item.message}")
+        self._finish_pending()
         now = time.perf_counter()
         editing_live = getattr(self, "live_editing", False)
         if editing_live and (not self.session.running or self.editor is None):
@@ -342,11 +374,14 @@ class ViewerApp(RunsMixin):
                 self.view.charge(time.perf_counter() - t0)
             if shown:
                 self._describe(snap)
-                if editing_live and len(snap) != self.editor.count:
+                if editing_live and self.pending:
+                    pass  # the editor is ahead of the trainer until its changes have been applied
+                elif editing_live and (len(snap) != self.editor.count
+                                       or snap.structure_version != self.editor.structure_version):
                     # densification changed the Gaussians under the selection: start again from the new model
                     from app.viewer.selection import Editor
 
-                    self.editor = Editor(snap, on_keep=self.session.trainer.keep)
+                    self.editor = Editor(snap, on_keep=self._keep_live)
                     self.say("the trainer changed its Gaussians: the selection was cleared")
                 elif editing_live:
                     self.editor.model = snap  # positions move while reconstructing: select where they are now

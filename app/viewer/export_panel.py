@@ -12,11 +12,15 @@ SUFFIX = {"ply": ".ply", "compressed-ply": ".compressed.ply", "splat": ".splat"}
 GREY = imgui.ImVec4(0.6, 0.6, 0.6, 1.0)
 
 
+def trainer_model(trainer):
+    return trainer.stylized_gaussians() if hasattr(trainer, "stylized_gaussians") else trainer.export_gaussians()
+
+
 def model_to_export(app):
     """The model on screen: the running trainer's, else the opened one after its edits."""
     trainer = app.session.trainer
     if trainer is not None:
-        return trainer.stylized_gaussians() if hasattr(trainer, "stylized_gaussians") else trainer.export_gaussians()
+        return trainer_model(trainer)
     if app.editor is not None:
         return app.edited_gaussians()
     raise ValueError("no model to export: open one or run a reconstruction")
@@ -66,20 +70,31 @@ def _count(app, selection_only: bool) -> int | None:
     return n
 
 
-def write(app):
+def write(app) -> None:
+    """Export the model on screen. A running trainer's model is copied and written on the training thread between
+    two steps (a consistent model, never one half-way through a step or an edit); the line comes back later."""
     from training.model.export import human_size, write_export
 
-    st = app.export_settings
-    g = model_to_export(app)
-    mask = None
-    if st["selection_only"]:
-        mask = selection_mask(app, len(g))
-        if mask is None:
-            raise ValueError("no selection on this model")
-    top_bands = 0 if st["format"] == "splat" else st["sh_bands"]
+    st = dict(app.export_settings)
+    selection = app.editor.selected.copy() if app.editor is not None else None
     path = Path(st["path"])
     path.parent.mkdir(parents=True, exist_ok=True)
-    result = write_export(path, g, fmt=st["format"], sh_bands=min(top_bands, g.sh_degree), mask=mask,
-                          pad_sh=not st.get("compact_sh", False))
-    app.say(f"wrote {result.path} ({result.count:,} Gaussians, {human_size(result.size)})")
-    return result
+
+    def export(g):
+        mask = None
+        if st["selection_only"]:
+            mask = selection if selection is not None and len(selection) == len(g) else None
+            if mask is None:
+                raise ValueError("no selection on this model")
+        top_bands = 0 if st["format"] == "splat" else st["sh_bands"]
+        return write_export(path, g, fmt=st["format"], sh_bands=min(top_bands, g.sh_degree), mask=mask,
+                            pad_sh=not st.get("compact_sh", False))
+
+    def said(result) -> None:
+        app.say(f"wrote {result.path} ({result.count:,} Gaussians, {human_size(result.size)})")
+        app.exports.append(result.path)
+
+    if app.session.running and app.session.trainer is not None:
+        app.submit_to_trainer("export", lambda trainer: export(trainer_model(trainer)), said)
+    else:
+        said(export(model_to_export(app)))

@@ -89,11 +89,15 @@ class RunsMixin:
         """Which Gaussians the stylization changes; a running stylizer takes it at its next step."""
         self.style_region = region
         trainer = self.session.trainer
-        if self._stage == "stylize" and trainer is not None and hasattr(trainer, "set_mask"):
+        if self._stage == "stylize" and self.session.running and trainer is not None and hasattr(trainer, "set_mask"):
             mask = self.region_mask()
-            if mask is not None and len(mask) != len(trainer.gaussians):
-                raise ValueError("the selection belongs to another model than the one being stylized")
-            trainer.set_mask(mask)
+
+            def apply(t):
+                if mask is not None and len(mask) != len(t.gaussians):
+                    raise ValueError("the selection belongs to another model than the one being stylized")
+                t.set_mask(mask)
+
+            self.submit_to_trainer("stylize region", apply)
 
     def _stylize_config_copy(self):
         from dataclasses import replace

@@ -98,7 +98,8 @@ class Editor:
     undo_stack: list[EditState] = field(default_factory=list)
     redo_stack: list[EditState] = field(default_factory=list)
     version: int = 0  # bumped by every change the view must show
-    on_keep: object = None  # called with each keep-mask: a running trainer takes the same edit
+    on_keep: object = None  # called with each keep-mask (and the structure it was made on): a running trainer
+    structure_version: int = 0  # the trainer's structure the rows refer to, counting the keeps handed to it
 
 
     def __post_init__(self) -> None:
@@ -106,6 +107,7 @@ class Editor:
         self.selected = np.zeros(n, bool) if self.selected is None else self.selected
         self.hidden = np.zeros(n, bool) if self.hidden is None else self.hidden
         self.index = np.arange(n) if self.index is None else self.index
+        self.structure_version = getattr(self.model, "structure_version", 0)
 
     # ------------------------------------------------------------------ selection (undoable too)
     def select(self, picked: np.ndarray, mode: str = "set") -> None:
@@ -146,7 +148,8 @@ class Editor:
     def keep(self, keep: np.ndarray) -> np.ndarray:
         if self.on_keep is not None:
             # a running trainer cannot take Gaussians back: its edits are final, and the history starts here
-            self.on_keep(keep)
+            self.on_keep(keep, self.structure_version)
+            self.structure_version += 1  # the trainer's keep changes its structure once
             self.undo_stack.clear()
             self.redo_stack.clear()
         else:

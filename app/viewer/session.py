@@ -20,6 +20,7 @@ import queue
 import threading
 import time
 from collections import deque
+from concurrent.futures import Future
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Callable
@@ -112,6 +113,16 @@ class LiveSession:
         self._stop.set()
         self._commands.put(("wake",))
 
+    def submit(self, fn: Callable[[Any], Any]) -> Future:
+        """Run ``fn(trainer)`` on the training thread between two steps (never during one) and return a Future of
+        its result. Every change to a running trainer's Gaussians (deletions, crops, the stylization's region) and
+        every read that must be whole (an export) goes through here, in the order submitted."""
+        if not self.running:
+            raise ValueError("no trainer is running")
+        future: Future = Future()
+        self._commands.put(("call", fn, future))
+        return future
+
     def update_config(self, **changes: Any) -> str | None:
         """Hand config changes to the running trainer (applied at its next step); the refusal as one line, or
         None when accepted (or when no trainer runs)."""
@@ -190,6 +201,13 @@ class LiveSession:
         elif name == "step":
             self._paused = True
             return True
+        elif name == "call":
+            _, fn, future = command
+            if future.set_running_or_notify_cancel():
+                try:
+                    future.set_result(fn(self._trainer))
+                except Exception as exc:  # noqa: BLE001  (the caller reads it from the future)
+                    future.set_exception(exc)
         return False
 
     def _next_commands(self) -> bool:
@@ -205,6 +223,22 @@ class LiveSession:
                 return False
 
     def _run(self, stages: list[Stage]) -> None:
+        try:
+            self._run_stages(stages)
+        finally:
+            self._trainer_gone()
+
+    def _trainer_gone(self) -> None:
+        """The run is over: calls still queued will never run; their futures say so (nobody waits forever)."""
+        while True:
+            try:
+                command = self._commands.get_nowait()
+            except queue.Empty:
+                return
+            if command[0] == "call":
+                command[2].set_exception(RuntimeError("the run ended before this change reached the trainer"))
+
+    def _run_stages(self, stages: list[Stage]) -> None:
         previous = None
         for stage in stages:
             if self._stop.is_set():

@@ -96,6 +96,7 @@ def painting(app) -> None:
     size = imgui.ImVec2(width, width * img.shape[0] / img.shape[1])
     pos = imgui.get_cursor_screen_pos()
     imgui.image(imgui.ImTextureRef(app.style_texture.glo), size)
+    app.painting_rect = (int(pos.x), int(pos.y), int(size.x), int(size.y))  # where it is on screen (tests look)
     trainer = app.session.trainer
     capacity = trainer.capacity_map() if trainer is not None and hasattr(trainer, "capacity_map") else None
     changed, app.show_capacity = imgui.checkbox("capacity map", getattr(app, "show_capacity", True))

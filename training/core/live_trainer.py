@@ -26,6 +26,7 @@ class LiveTrainer:
         self._pending_config = None
         self._version = 0
         self._geometry_version = 0
+        self._structure_version = 0
         self._last_snapshot: ModelSnapshot | None = None
         self.events = EventSource(stage)
 
@@ -50,6 +51,14 @@ class LiveTrainer:
         with self._model_lock:
             if self._pending_config is not None:
                 self.config, self._pending_config = self._pending_config, None
+
+    @property
+    def structure_version(self) -> int:
+        """Bumped whenever Gaussians are added, removed or reordered: rows of an older snapshot no longer match."""
+        return self._structure_version
+
+    def _structure_changed(self) -> None:
+        self._structure_version += 1
 
     # ------------------------------------------------------------------ snapshots
     def _snapshot_step(self) -> int:
@@ -77,6 +86,6 @@ class LiveTrainer:
                     geometry = tuple(frozen_array(t) for t in self._snapshot_geometry())
                 sh, degree = self._snapshot_colours()
                 snap = ModelSnapshot(self._version, self._geometry_version, self._snapshot_step(), *geometry,
-                                     frozen_array(sh), degree)
+                                     frozen_array(sh), degree, self._structure_version)
             self._last_snapshot = snap
             return snap

@@ -96,6 +96,7 @@ class ModelSnapshot:
     opacities: np.ndarray
     sh: np.ndarray
     sh_degree: int
+    structure_version: int = 0  # changes when Gaussians are added, removed or reordered (a selection's rows move)
 
     def __len__(self) -> int:
         return int(self.means.shape[0])

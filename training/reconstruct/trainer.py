@@ -286,6 +286,7 @@ class Reconstructor(LiveTrainer):
             st = self.strategy
             st.grad_accum, st.count, st.max_radii = st.grad_accum[keep_t], st.count[keep_t], st.max_radii[keep_t]
             self._model_changed()
+            self._structure_changed()
             self._snapshot = self._take_snapshot()  # a NaN restore must not bring the removed ones back
         self.events.emit("structure", self.step_count, {"num_gaussians": len(self.gaussians)})
 
@@ -405,6 +406,7 @@ class Reconstructor(LiveTrainer):
                 **counts, "recovered": False, "times": times}
         self.events.emit("step", i, {**result, "total_iters": self.total_iters})
         if len(self.gaussians) != n_before or any(counts.get(k) for k in ("cloned", "split", "pruned")):
+            self._structure_changed()
             self.events.emit("structure", i, {"num_gaussians": len(self.gaussians), **counts})
         if i == self.total_iters:
             self.events.emit("finished", i)
@@ -446,6 +448,7 @@ class Reconstructor(LiveTrainer):
         result = {"step": step, "loss": float("nan"), "psnr": float("nan"), "num_gaussians": len(self.gaussians),
                   "sh_degree": self.active_sh_degree, "view": view, "recovered": True, "times": times}
         self.events.emit("warning", step, message=message)
+        self._structure_changed()
         self.events.emit("structure", step, {"num_gaussians": len(self.gaussians)})
         self.events.emit("step", step, {**result, "total_iters": self.total_iters})
         return result

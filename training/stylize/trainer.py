@@ -484,6 +484,7 @@ class Stylizer(LiveTrainer):
             self._content_cache = None  # a virtual view's content is a render of the model
             self._version += 1
             self._geometry_version += 1
+            self._structure_changed()
         self.events.emit("structure", self.iteration, {"num_gaussians": len(self.gaussians)})
 
     # ------------------------------------------------------------------ after
