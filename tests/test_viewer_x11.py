@@ -7,6 +7,7 @@
 from __future__ import annotations
 
 import pickle
+import shutil
 
 import numpy as np
 import pytest
@@ -86,6 +87,7 @@ def test_x11_view_shows_the_model_after_resize_help_and_selection(demo_scene, x_
     scene_dir, _, model = demo_scene
     found = run_gui(PRELUDE + LOOK + f"""
 import pickle
+import shutil
 import glfw
 from imgui_bundle import glfw_utils, imgui
 app = ViewerApp(Paths(model={str(model)!r}, data={str(scene_dir)!r}, out=str(OUT / "out")))
@@ -201,3 +203,85 @@ Path(os.environ["RESULT"]).write_text(json.dumps(found))
     expected = (painting[rows][:, cols] * 255).round()
     assert psnr(plain, expected) >= 20.0, "the Style panel does not show the painting"
     assert float(np.abs(with_map.astype(float) - plain.astype(float)).mean()) > 3.0, "no capacity map drawn"
+
+
+KEYS_APP = """
+import json, os, sys
+from pathlib import Path
+import numpy as np
+from imgui_bundle import hello_imgui
+from app.viewer.app import Paths, ViewerApp, run
+
+OUT = Path(os.environ["OUT"])
+app = ViewerApp(Paths(model=sys.argv[1], out=str(OUT / "out")))
+gui, post_init = app.gui, app.post_init
+
+def post():
+    post_init()
+    for _ in range(3):  # three deletions to undo (each one undo step)
+        app.editor.keep(np.arange(app.editor.count) >= 100)
+
+def frame():
+    gui()
+    state = {"count": app.editor.count, "rotation": app.view.camera.rotation.tolist(), "rect": list(app.view_rect)}
+    (OUT / "state.tmp").write_text(json.dumps(state))
+    (OUT / "state.tmp").replace(OUT / "state.json")
+    if (OUT / "quit").exists():
+        hello_imgui.get_runner_params().app_shall_exit = True
+
+app.gui, app.post_init = frame, post
+run(app)
+"""
+
+
+@pytest.mark.skipif(shutil.which("xdotool") is None, reason="xdotool not found (Debian/Ubuntu: apt-get install xdotool)")
+def test_x11_real_key_events_quick_ctrl_z_undoes_once_and_never_rolls(demo_scene, x_server, tmp_path):
+    """Keys typed through the X server (xdotool's XTEST events), as a keyboard types them, into the application's
+    own loop (the test engine would swallow real input): a quick Ctrl+Z undoes one deletion, a held one does not
+    repeat, and neither rolls the camera (Z alone is a roll key)."""
+    import json
+    import os
+    import subprocess
+    import sys
+    import time
+
+    from tests.viewer_harness import ROOT
+
+    _, _, model = demo_scene
+    env = dict(os.environ, OUT=str(tmp_path), XDG_CONFIG_HOME=str(tmp_path / "config"), **x11_env(x_server))
+    state_file = tmp_path / "state.json"
+
+    def state(after: float = 0.0) -> dict:
+        time.sleep(after)
+        return json.loads(state_file.read_text())
+
+    def xdotool(*args: str) -> None:
+        subprocess.run(["xdotool", *args], env=env, check=True, timeout=30)
+
+    proc = subprocess.Popen([sys.executable, "-c", KEYS_APP, str(model)], cwd=ROOT, env=env,
+                            stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
+    try:
+        t0 = time.time()
+        while not state_file.exists():
+            assert proc.poll() is None and time.time() - t0 < 120, proc.stdout.read() if proc.poll() else "no start"
+            time.sleep(0.2)
+        first = state(0.5)
+        x, y, w, h = first["rect"]
+        xdotool("mousemove", str(x + w // 2), str(y + h // 2))  # the window sits at the screen's corner
+        time.sleep(0.3)
+        xdotool("key", "--delay", "0", "ctrl+z")  # pressed and released within a millisecond
+        after_quick = state(1.0)
+        xdotool("keydown", "ctrl", "keydown", "z")  # held for a second: no repeat
+        time.sleep(1.0)
+        xdotool("keyup", "z", "keyup", "ctrl")
+        after_held = state(1.0)
+    finally:
+        (tmp_path / "quit").touch()
+        try:
+            proc.wait(60)
+        except subprocess.TimeoutExpired:
+            proc.kill()
+    n = first["count"]
+    assert after_quick["count"] == n + 100  # one undo for one quick Ctrl+Z
+    assert after_held["count"] == n + 200  # one more for one held Ctrl+Z, not a repeat
+    assert np.abs(np.array(after_held["rotation"]) - np.array(first["rotation"])).max() < 1e-9  # no roll

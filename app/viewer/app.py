@@ -518,17 +518,18 @@ class ViewerApp(RunsMixin):
             self.note_input()
 
     def shortcuts(self) -> None:
-        """Keys act on the key's press event, with the modifiers held at that event (imgui's Shortcut routing), so
-        a quick Ctrl+Z undoes once and a held one does not repeat; plain keys never fire while text is typed."""
+        """Keys act on the key's press event, with the modifiers held at that event (imgui's key chords, from its
+        ordered input queue), so a quick Ctrl+Z undoes once and a held one does not repeat; plain keys never fire
+        while text is typed."""
         from imgui_bundle import imgui
 
         io = imgui.get_io()
         k, ctrl, shift = imgui.Key, imgui.Key.mod_ctrl.value, imgui.Key.mod_shift.value
-        glob = imgui.InputFlags_.route_global.value
-        if self.editor is not None:
-            if imgui.shortcut(ctrl | k.z.value, glob):
+        chord = imgui.is_key_chord_pressed
+        if self.editor is not None and not io.want_text_input:
+            if chord(ctrl | k.z.value):
                 self.editor.undo()
-            elif imgui.shortcut(ctrl | k.y.value, glob) or imgui.shortcut(ctrl | shift | k.z.value, glob):
+            elif chord(ctrl | k.y.value) or chord(ctrl | shift | k.z.value):
                 self.editor.redo()
         if imgui.is_key_pressed(k.f1, False):
             self.show_help = not self.show_help
