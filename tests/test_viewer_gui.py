@@ -40,7 +40,7 @@ def test(ctx):
     open_window(ctx, "Style")
     changed_at = app.session.status().step     # steps up to this one finished before the change
     ctx.item_input_value("tau", 0.05)          # the slider, through the UI
-    found["tau_in_panel"] = app.stylize_config.tau
+    found["tau_in_panel"] = app.training.stylize.tau
     new_tau = lambda h: abs(h.get("tau", 0.0) - 0.05) < 1e-6  # the slider holds float32
     wait(ctx, lambda: any(new_tau(h) for h in list(app.session.history)), 60,
          "a step that used the new tau")
@@ -50,7 +50,7 @@ def test(ctx):
     found["changed_at"] = changed_at
     open_window(ctx, "View order")
     ctx.yield_(3)
-    found["drawn_order"] = list(app.drawn_order)
+    found["drawn_order"] = list(app.window.drawn_order)
     found["trainer_order"] = [item.source_index for item in trainer.trajectory if not item.is_virtual]
     found["capacity_shape"] = list(trainer.capacity_map().shape)
     open_window(ctx, "Edit")
@@ -143,7 +143,7 @@ def test(ctx):
     for axis in range(3):  # typed into the panel's box fields, as a user does
         ctx.item_input_value(f"box min/$${{axis}}", float(lo[axis]))
         ctx.item_input_value(f"box max/$${{axis}}", float(hi[axis]))
-    found["box_in_panel"] = [list(app.edit_box[0]), list(app.edit_box[1])]
+    found["box_in_panel"] = [list(app.edit.box[0]), list(app.edit.box[1])]
     ctx.item_click("Select in box")
     found["selected"] = int(ed.selected.sum())
     ctx.item_click("Delete")
@@ -188,14 +188,14 @@ app = ViewerApp(Paths(model={str(model)!r}, data={str(scene_dir)!r}, out=str(OUT
 def test(ctx):
     open_window(ctx, "Camera path")
     ctx.item_click("Dataset trajectory")
-    found["keyframes"] = len(app.path_keys)
+    found["keyframes"] = len(app.path.keys)
     ctx.item_input_value("seconds", 1.0)
     ctx.item_input_value("fps", 12)
     ctx.item_input_value("size/$$0", 96)
     ctx.item_input_value("size/$$1", 64)
     ctx.item_input_value("video file", str(OUT / "path.mp4"))
     ctx.item_click("Render video")
-    wait(ctx, lambda: app.video_job is None, 120, "the video")
+    wait(ctx, lambda: app.path.job is None, 120, "the video")
     found["messages"] = app.messages[-2:]
 
 run(app, test)
@@ -245,11 +245,11 @@ def test(ctx):
             ed.select(in_sphere(ed.model.means, ed.model.means[rng.randrange(ed.count)], 1.0), "set")
             app.set_style_region(rng.choice(["all", "selection", "unselected"]))
         else:
-            app.export_settings["path"] = str(OUT / "exports" / f"export_{{i:03d}}.ply")
+            app.export.path = str(OUT / "exports" / f"export_{{i:03d}}.ply")
             export_panel.write(app)
         counts[what] += 1
         ctx.yield_(1)
-    wait(ctx, lambda: not app.pending, 120, "the trainer to take every change")
+    wait(ctx, lambda: not app.training.pending, 120, "the trainer to take every change")
     found["counts"] = counts
     found["index"] = app.editor.index.tolist()
     found["step_at_end"] = app.session.status().step
@@ -262,7 +262,7 @@ def test(ctx):
 run(app, test)
 found["error"] = app.error
 found["messages"] = [m for m in app.messages if m.startswith("error")]
-found["exports"] = [str(p) for p in app.exports]
+found["exports"] = [str(p) for p in app.export.written]
 Path(os.environ["RESULT"]).write_text(json.dumps(found))
 """, tmp_path, timeout=600)
     from training.model.ply_io import read_ply

@@ -61,7 +61,7 @@ def headless_render(model, camera) -> np.ndarray:
 LOOK = """
 def view_region(screen):
     ox, oy = window_origin()
-    x, y, w, h = app.view_rect
+    x, y, w, h = app.window.view_rect
     return screen[oy + y: oy + y + h, ox + x: ox + x + w]
 
 def still_frame(ctx):
@@ -79,7 +79,7 @@ def record(name, ctx):
     np.save(OUT / f"{name}_region.npy", region)
     with open(OUT / f"{name}_camera.pkl", "wb") as f:
         pickle.dump(app.view.camera.camera(region.shape[1], region.shape[0]), f)
-    found[name] = {"rect": list(app.view_rect), "origin": list(window_origin())}
+    found[name] = {"rect": list(app.window.view_rect), "origin": list(window_origin())}
 """
 
 
@@ -106,19 +106,19 @@ def test(ctx):
     ctx.set_ref("")
     ctx.key_press(imgui.Key.h)
     settle(ctx, 0.5)
-    found["help_shown"] = app.show_help
+    found["help_shown"] = app.window.show_help
     ctx.key_press(imgui.Key.h)
     record("help_closed", ctx)
     # a rectangle selection dragged across the view and cleared: no trail of rectangles
-    x, y, w, h = app.view_rect
-    app.tool = "rect"
+    x, y, w, h = app.window.view_rect
+    app.edit.tool = "rect"
     ctx.mouse_move_to_pos(imgui.ImVec2(x + w * 0.3, y + h * 0.3))
     ctx.mouse_down(0)
     for t in np.linspace(0.3, 0.7, 8):
         ctx.mouse_move_to_pos(imgui.ImVec2(x + w * t, y + h * t))
     ctx.mouse_up(0)
     found["selected_by_drag"] = int(app.editor.selected.sum())
-    app.tool = "orbit"
+    app.edit.tool = "orbit"
     app.editor.select_none()
     record("after_drag", ctx)
 
@@ -162,26 +162,26 @@ def region(screen, rect):
 def test(ctx):
     wait(ctx, lambda: app.session.status().state == "running" and app.session.status().step >= 2, 180,
          "the stylizer to run")
-    app.refresh_s = 0.5
-    wait(ctx, lambda: app.shown_step is not None, 60, "the first live model on screen")
+    app.training.refresh_s = 0.5
+    wait(ctx, lambda: app.training.shown_step is not None, 60, "the first live model on screen")
     settle(ctx, 0.5)
-    first_step, first = app.shown_step, view_region(x_screen())
+    first_step, first = app.training.shown_step, view_region(x_screen())
     open_window(ctx, "Style")
     ctx.item_input_value("tau", 0.05)          # the slider, through the UI
     new_tau = lambda h: abs(h.get("tau", 0.0) - 0.05) < 1e-6
     wait(ctx, lambda: any(new_tau(h) for h in list(app.session.history)), 90, "a step that used the new tau")
     found["tau_after"] = app.session.trainer.config.tau
-    wait(ctx, lambda: app.shown_step >= first_step + 40, 180, "the view to show 40 steps later")
+    wait(ctx, lambda: app.training.shown_step >= first_step + 40, 180, "the view to show 40 steps later")
     settle(ctx, 0.5)
     later = view_region(x_screen())
     found["view_change"] = float(np.abs(later.astype(float) - first.astype(float)).mean())
     found["view_std"] = float(later.std())
     ctx.item_click("capacity map")             # off: the painting alone
     settle(ctx, 0.5)
-    np.save(OUT / "painting_plain.npy", region(x_screen(), app.painting_rect))
+    np.save(OUT / "painting_plain.npy", region(x_screen(), app.window.painting_rect))
     ctx.item_click("capacity map")             # on again: the map over it
     settle(ctx, 0.5)
-    np.save(OUT / "painting_map.npy", region(x_screen(), app.painting_rect))
+    np.save(OUT / "painting_map.npy", region(x_screen(), app.window.painting_rect))
     found["capacity_shape"] = list(app.session.trainer.capacity_map().shape)
 
 run(app, test)
@@ -223,7 +223,7 @@ def post():
 
 def frame():
     gui()
-    state = {"count": app.editor.count, "rotation": app.view.camera.rotation.tolist(), "rect": list(app.view_rect)}
+    state = {"count": app.editor.count, "rotation": app.view.camera.rotation.tolist(), "rect": list(app.window.view_rect)}
     (OUT / "state.tmp").write_text(json.dumps(state))
     (OUT / "state.tmp").replace(OUT / "state.json")
     if (OUT / "quit").exists():

@@ -22,6 +22,9 @@ import sys
 import time
 
 
+WINDOW = (1280, 800)  # the window's size in the window phases (its 3D view is the docked layout's central node)
+
+
 def run_live(seconds: float, warmup_steps: int = 30) -> list[dict]:
     rows = []
     for phase in ("headless", "window_still", "window_moving", "latency"):
@@ -91,7 +94,7 @@ def _window(phase: str, seconds: float, warmup: int) -> dict:
 
     app.gui = gui
     prepare_glfw(choose_platform())
-    immapp.run(app.runner_params(), immapp.AddOnsParams(with_implot=True))
+    immapp.run(app.runner_params(size=WINDOW), immapp.AddOnsParams(with_implot=True))
     return state["result"]
 
 
@@ -106,7 +109,7 @@ def _latency(seconds: float, warmup: int, n: int = 100_000) -> dict:
 
     app = ViewerApp(Paths(data=str(demo_assets().scene_dir), out="/tmp/splatstyler_bench_viewer"),
                     start="reconstruct", recon_iters=100_000, downscale=1)
-    app.refresh_s = 1e9  # the view keeps the 100k model; the trainer runs beside it
+    app.training.refresh_s = 1e9  # the view keeps the 100k model; the trainer runs beside it
     rng = np.random.default_rng(0)
     ro = lambda a: (a.setflags(write=False), a)[1]  # noqa: E731
     quats = rng.normal(size=(n, 4)).astype(np.float32)
@@ -116,7 +119,7 @@ def _latency(seconds: float, warmup: int, n: int = 100_000) -> dict:
                           ro(rng.uniform(0.2, 0.9, n).astype(np.float32)),
                           ro(rng.normal(0, 1, (n, 1, 3)).astype(np.float32)), 0)
     state = {"pending": None, "latencies": [], "t0": None, "last": 0.0}
-    inner_gui, inner_bg = app.gui, app.custom_background
+    inner_gui = app.gui
 
     def gui():
         if app.view is not None and app.view.renderer.count(0) != n:
@@ -134,16 +137,16 @@ def _latency(seconds: float, warmup: int, n: int = 100_000) -> dict:
             app.note_input()
             state["pending"] = (now, app.view.frames_drawn)
 
-    def background():
-        inner_bg()
+    def drawn():  # after every panel and the view have been drawn, before imgui renders the frame
         if state["pending"] is not None and app.view.frames_drawn > state["pending"][1]:
             state["latencies"].append(time.perf_counter() - state["pending"][0])
             state["last"] = time.perf_counter()
             state["pending"] = None
 
-    app.gui, app.custom_background = gui, background
+    app.gui = gui
     prepare_glfw(choose_platform())
     params = app.runner_params(size=(960, 540))
+    params.callbacks.before_imgui_render = drawn
     immapp.run(params, immapp.AddOnsParams(with_implot=True))
     lat = sorted(state["latencies"])
     if not lat:

@@ -18,6 +18,7 @@ import numpy as np
 
 from app.viewer.runs import RunsMixin
 from app.viewer.session import LiveSession, SessionMessage
+from app.viewer.state import CameraPathState, EditTools, ExportSettings, TrainingState, WindowState
 from training.core.messages import ModelSnapshot, TrainerEvent
 
 IDLE_FPS = 4.0  # frames per second while nothing happens: each frame costs a running trainer CPU time
@@ -68,50 +69,31 @@ class ViewerApp(RunsMixin):
         self.style_image: np.ndarray | None = None
         self.editor = None  # selection.Editor over the opened model (shown when no trainer runs)
         self.source_gaussians = None  # the opened model as read, raw parameters (what edits index into)
-        self._editor_shown = None
-        self.tool = "orbit"  # orbit | rect | brush | lasso: what a left drag in the 3D view does
-        self.select_mode = "set"
-        self.brush_radius = 30.0
-        self._gesture: list[tuple[float, float]] = []
-        self.style_region = "all"  # all | selection | unselected: which Gaussians a stylization may change
         out = Path(self.paths.out)
-        self.export_settings = {"format": "ply", "sh_bands": 3, "selection_only": False, "compact_sh": False,
-                                "path": str(out / "export.ply")}
-        self.path_keys: list = []  # app.camera_path.Keyframe
-        self.path_settings = {"seconds": 8.0, "fps": 30, "loop": False, "file": str(out / "camera_path.json"),
-                              "size": [640, 360], "video": str(out / "path.mp4"), "split": False}
-        self.video_job = None
+        self.edit = EditTools()
+        self.export = ExportSettings(path=str(out / "export.ply"))
+        self.path = CameraPathState(file=str(out / "camera_path.json"), video=str(out / "path.mp4"))
+        self.training = TrainingState(preset=preset, recon_iters=recon_iters, downscale=downscale,
+                                      stylize=StylizeConfig(preset="quick", **(stylize_overrides or {})))
+        self.window = WindowState()
         self.original: ModelSnapshot | None = None  # the model before stylization (split view, right: stylized)
         self.model_info: dict[str, Any] = {}
-        self.preset = preset
-        self.recon_iters = recon_iters
-        self.downscale = downscale
-        self.stylize_config = StylizeConfig(preset="quick", **(stylize_overrides or {}))
-        self.refresh_s = 1.0
         self.messages: list[str] = []  # one-line messages for the user, newest last
         self.error = ""
-        self.show_help = False
         self.frames = 0
+        self.capacity_texture = None
+        self.style_texture = None
+        self.order_preview: list | None = None  # (camera index, is_virtual) before a run
+        self.software_gl = False
+        self.closed = False
         self._start = start
         self._last_snapshot_at = 0.0
         self._last_frame_time = time.perf_counter()
         self._stage = ""
-        self.capacity_texture = None
-        self.style_texture = None
-        self.order_preview: list | None = None  # (camera index, is_virtual) before a run
-        self.screenshot_path: Path | None = None
-        self.closed = False
-        self.view_rect = (0, 0, 1, 1)  # where the 3D view is in the window (logical pixels): set as it is drawn
-        self.view_hovered = False
-        self.frame_dt = 0.0
-        self.frames_per_second = 0.0
-        self.shown_step: int | None = None  # the trainer step whose model the view shows
-        self.base_model = ""  # the model as opened or reconstructed: what a stylization starts from
-        self.stylize_runs: list[Path] = []  # each stylization's saved model, in order
-        self.continue_last_run = False
         self._dropped: list[str] = []
-        self.exports: list[Path] = []  # files the export dialog wrote, in order
-        self.pending: list = []  # (what, Future, on done): changes and reads handed to the running trainer
+        self._platform = "null"
+        self._active_at = 0.0
+        self._frame_start = 0.0
 
     # ------------------------------------------------------------------ messages
     def say(self, line: str) -> None:
@@ -145,9 +127,9 @@ class ViewerApp(RunsMixin):
 
         g = read_splat(p) if p.suffix.lower() == ".splat" else read_ply(p)
         self.source_gaussians = g
-        self.base_model = str(p)
+        self.training.base_model = str(p)
         self.editor = Editor(snapshot_of(g, version=-int(time.time() * 1000) % 1_000_000_000))
-        self._editor_shown = None
+        self.edit.shown_version = None
         self.paths.model = str(p)
         self._describe(self.static_model)
         if self.view is not None:
@@ -224,7 +206,7 @@ class ViewerApp(RunsMixin):
             raise ValueError("no running trainer to edit")
         self.editor = Editor(trainer.snapshot(), on_keep=self._keep_live)
         self.source_gaussians = None
-        self.live_editing = True
+        self.edit.live = True
         self.say("editing the running trainer's model: deletions and crops apply to it and cannot be undone")
 
     def _keep_live(self, keep: np.ndarray, structure_version: int) -> None:
@@ -242,11 +224,11 @@ class ViewerApp(RunsMixin):
     def submit_to_trainer(self, what: str, fn, done=None) -> None:
         """``fn(trainer)`` on the training thread between steps (session.submit); its error, or ``done(result)``,
         comes back at a later frame."""
-        self.pending.append((what, self.session.submit(fn), done))
+        self.training.pending.append((what, self.session.submit(fn), done))
 
     def _finish_pending(self) -> None:
         still = []
-        for what, future, done in self.pending:
+        for what, future, done in self.training.pending:
             if not future.done():
                 still.append((what, future, done))
             elif future.exception() is not None:
@@ -254,7 +236,7 @@ class ViewerApp(RunsMixin):
                 self.fail(f"{what}: {exc}")
             elif done is not None:
                 self.guarded(what, done, future.result())
-        self.pending = still
+        self.training.pending = still
 
     def edited(self) -> bool:
         return self.editor is not None and (len(self.editor.index) != len(self.source_gaussians)
@@ -330,7 +312,7 @@ class ViewerApp(RunsMixin):
     def set_photo(self, index: int) -> None:
         img = self.photo(index)
         self.view.renderer.set_photo(img)
-        self.photo_index = index
+        self.window.photo_index = index
         self.view.dirty = True
 
     # ------------------------------------------------------------------ per frame
@@ -357,24 +339,24 @@ class ViewerApp(RunsMixin):
                     self.say(f"warning: {item.message}")
         self._finish_pending()
         now = time.perf_counter()
-        editing_live = getattr(self, "live_editing", False)
+        editing_live = self.edit.live
         if editing_live and (not self.session.running or self.editor is None):
-            self.live_editing = editing_live = False
+            self.edit.live = editing_live = False
         # a new snapshot only once the last one is on screen: each upload spends the view's drawing budget, and
         # taking one whenever the budget allows would spend it all on uploads and never draw (a frozen view)
-        if (self.session.trainer is not None and now - self._last_snapshot_at >= self.refresh_s
+        if (self.session.trainer is not None and now - self._last_snapshot_at >= self.training.refresh_s
                 and not self.view.dirty and (not self.training_now() or self.view.may_draw_now())):
             snap = self.session.snapshot()
             self._last_snapshot_at = now
             if snap is not None:
-                self.shown_step = snap.step
+                self.training.shown_step = snap.step
             t0 = time.perf_counter()
             shown = snap is not None and self.view.show(snap, 0)
             if self.training_now():
                 self.view.charge(time.perf_counter() - t0)
             if shown:
                 self._describe(snap)
-                if editing_live and self.pending:
+                if editing_live and self.training.pending:
                     pass  # the editor is ahead of the trainer until its changes have been applied
                 elif editing_live and (len(snap) != self.editor.count
                                        or snap.structure_version != self.editor.structure_version):
@@ -391,19 +373,19 @@ class ViewerApp(RunsMixin):
                     self._place_camera()
         if self.original is not None and self.view.settings.split:
             self.view.show(self.original, 1)
-        if editing_live and self._editor_shown != self.editor.version:
+        if editing_live and self.edit.shown_version != self.editor.version:
             snap = self.session.snapshot()
             if snap is not None and len(snap) == self.editor.count:
                 self.view.show(snap, 0)
                 self.view.renderer.set_flags(self.editor.flags(), 0)
-                self._editor_shown = self.editor.version
+                self.edit.shown_version = self.editor.version
                 self.view.dirty = True
         elif (self.editor is not None and self.session.trainer is None
-              and self._editor_shown != self.editor.version):
+              and self.edit.shown_version != self.editor.version):
             self.view.show(self.editor.model, 0)
             self.view.renderer.set_flags(self.editor.flags(), 0)
             self._describe(self.editor.model)
-            self._editor_shown = self.editor.version
+            self.edit.shown_version = self.editor.version
             self.view.dirty = True
 
     def training_now(self) -> bool:
@@ -498,23 +480,23 @@ class ViewerApp(RunsMixin):
 
         self.frames += 1
         now = time.perf_counter()
-        self.frame_dt, self._last_frame_time = now - self._last_frame_time, now
-        if self.frame_dt > 0:
-            self.frames_per_second = 0.9 * self.frames_per_second + 0.1 / self.frame_dt
+        self.window.frame_dt, self._last_frame_time = now - self._last_frame_time, now
+        if self.window.frame_dt > 0:
+            self.window.fps = 0.9 * self.window.fps + 0.1 / self.window.frame_dt
         while self._dropped:
             path = self._dropped.pop(0)
             self.guarded(f"open {path}", self.open_dropped, path)
         self.guarded("update", self.sync)
         self.guarded("keys", self.shortcuts)
         step_video(self)
-        if self.show_help:
+        if self.window.show_help:
             panels.help_overlay(self)
         io = imgui.get_io()
         training = self.training_now()
         drawable = self.view.needs_draw(training) and (not training or self.view.may_draw_now())
         if (io.mouse_delta.x or io.mouse_delta.y or io.mouse_wheel or imgui.is_any_item_active()
                 or any(imgui.is_mouse_down(b) for b in range(3)) or drawable
-                or self.view.flying or (self.video_job is not None and not self.video_job.finished)):
+                or self.view.flying or (self.path.job is not None and not self.path.job.finished)):
             self.note_input()
 
     def shortcuts(self) -> None:
@@ -532,11 +514,11 @@ class ViewerApp(RunsMixin):
             elif chord(ctrl | k.y.value) or chord(ctrl | shift | k.z.value):
                 self.editor.redo()
         if imgui.is_key_pressed(k.f1, False):
-            self.show_help = not self.show_help
+            self.window.show_help = not self.window.show_help
         if io.want_text_input or self.editor_shortcut_held():
             return
         if imgui.is_key_pressed(k.h, False):
-            self.show_help = not self.show_help
+            self.window.show_help = not self.window.show_help
         if imgui.is_key_pressed(k.r, False):
             self.reset_camera()
         if imgui.is_key_pressed(k.n, False):
@@ -578,9 +560,9 @@ class ViewerApp(RunsMixin):
         nothing happens. Sleeping frees the CPU and the GIL for the trainer. (Hello ImGui's own idling either
         never idled or spun a whole core on GLFW's null platform, measured; ours is the same on every platform.)"""
         now = time.perf_counter()
-        active = now - getattr(self, "_active_at", 0.0) < ACTIVE_AFTER_INPUT_S
+        active = now - self._active_at < ACTIVE_AFTER_INPUT_S
         top = MAX_FPS_TRAINING if self.training_now() else MAX_FPS
-        wait = 1.0 / (top if active else IDLE_FPS) - (now - getattr(self, "_frame_start", 0.0))
+        wait = 1.0 / (top if active else IDLE_FPS) - (now - self._frame_start)
         if wait > 0:
             if self._platform == "null":
                 time.sleep(wait)  # no input to wait for (and the null platform's event wait returns at once)

@@ -3,6 +3,7 @@ or the selection, and the file's size before it is written (training/model/expor
 
 from __future__ import annotations
 
+from dataclasses import replace
 from pathlib import Path
 
 from imgui_bundle import imgui
@@ -36,22 +37,22 @@ def selection_mask(app, count: int):
 def export_section(app) -> None:
     from training.model.export import export_size, human_size, max_sh_bands
 
-    st = app.export_settings
-    changed, i = imgui.combo("format", FORMATS.index(st["format"]), list(FORMATS))
+    st = app.export
+    changed, i = imgui.combo("format", FORMATS.index(st.format), list(FORMATS))
     if changed:
-        st["format"] = FORMATS[i]
-        st["path"] = str(Path(st["path"]).parent / ("export" + SUFFIX[st["format"]]))
-    top = max_sh_bands(st["format"])
+        st.format = FORMATS[i]
+        st.path = str(Path(st.path).parent / ("export" + SUFFIX[st.format]))
+    top = max_sh_bands(st.format)
     if top > 0:
-        _, st["sh_bands"] = imgui.slider_int("SH bands kept", min(st["sh_bands"], top), 0, top)
-    _, st["selection_only"] = imgui.checkbox("selection only", st["selection_only"])
-    if st["format"] == "ply":
-        _, st["compact_sh"] = imgui.checkbox("only the kept bands' coefficients", st["compact_sh"])
-    _, st["path"] = imgui.input_text("file", st["path"])
-    count = _count(app, st["selection_only"])
+        _, st.sh_bands = imgui.slider_int("SH bands kept", min(st.sh_bands, top), 0, top)
+    _, st.selection_only = imgui.checkbox("selection only", st.selection_only)
+    if st.format == "ply":
+        _, st.compact_sh = imgui.checkbox("only the kept bands' coefficients", st.compact_sh)
+    _, st.path = imgui.input_text("file", st.path)
+    count = _count(app, st.selection_only)
     if count is not None:
-        bands = 0 if top == 0 else min(st["sh_bands"], top)
-        size = export_size(st["format"], bands, count, pad_sh=not st.get("compact_sh", False))
+        bands = 0 if top == 0 else min(st.sh_bands, top)
+        size = export_size(st.format, bands, count, pad_sh=not st.compact_sh)
         imgui.text(f"{count:,} Gaussians, {human_size(size)}")
     else:
         imgui.text_colored(GREY, "nothing to export")
@@ -75,24 +76,24 @@ def write(app) -> None:
     two steps (a consistent model, never one half-way through a step or an edit); the line comes back later."""
     from training.model.export import human_size, write_export
 
-    st = dict(app.export_settings)
+    st = replace(app.export)  # the settings as they are now: the write may run later, on the training thread
     selection = app.editor.selected.copy() if app.editor is not None else None
-    path = Path(st["path"])
+    path = Path(st.path)
     path.parent.mkdir(parents=True, exist_ok=True)
 
     def export(g):
         mask = None
-        if st["selection_only"]:
+        if st.selection_only:
             mask = selection if selection is not None and len(selection) == len(g) else None
             if mask is None:
                 raise ValueError("no selection on this model")
-        top_bands = 0 if st["format"] == "splat" else st["sh_bands"]
-        return write_export(path, g, fmt=st["format"], sh_bands=min(top_bands, g.sh_degree), mask=mask,
-                            pad_sh=not st.get("compact_sh", False))
+        top_bands = 0 if st.format == "splat" else st.sh_bands
+        return write_export(path, g, fmt=st.format, sh_bands=min(top_bands, g.sh_degree), mask=mask,
+                            pad_sh=not st.compact_sh)
 
     def said(result) -> None:
         app.say(f"wrote {result.path} ({result.count:,} Gaussians, {human_size(result.size)})")
-        app.exports.append(result.path)
+        app.export.written.append(result.path)
 
     if app.session.running and app.session.trainer is not None:
         app.submit_to_trainer("export", lambda trainer: export(trainer_model(trainer)), said)

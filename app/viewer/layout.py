@@ -99,7 +99,7 @@ def status_text(app) -> str:
             bits.append(f"PSNR {m['psnr']:.2f}")
         elif "loss" in m:
             bits.append(f"loss {m['loss']:.4g}")
-        behind = status.step - app.shown_step if app.shown_step is not None else None
+        behind = status.step - app.training.shown_step if app.training.shown_step is not None else None
         if behind and behind > 0 and status.state == "running":
             bits.append(f"view {behind} steps behind")
     else:
@@ -107,7 +107,7 @@ def status_text(app) -> str:
     count = app.model_info.get("count")
     if count:
         bits.append(f"{count:,} Gaussians")
-    bits.append(f"{app.frames_per_second:.0f} fps")
+    bits.append(f"{app.window.fps:.0f} fps")
     return "   |   ".join(bits)
 
 
@@ -134,5 +134,5 @@ def menus(app) -> None:
     if imgui.begin_menu("View"):
         if imgui.menu_item("Reset layout", "", False)[0]:
             hello_imgui.get_runner_params().docking_params.layout_reset = True
-        _, app.show_help = imgui.menu_item("Keys (H)", "", app.show_help)
+        _, app.window.show_help = imgui.menu_item("Keys (H)", "", app.window.show_help)
         imgui.end_menu()

@@ -16,7 +16,7 @@ def help_overlay(app) -> None:
                               imgui.ImVec2(0.5, 0.5))
     imgui.set_next_window_bg_alpha(0.85)
     flags = imgui.WindowFlags_.always_auto_resize | imgui.WindowFlags_.no_collapse
-    expanded, app.show_help = imgui.begin("Keys", True, flags)
+    expanded, app.window.show_help = imgui.begin("Keys", True, flags)
     if expanded:
         for key, what in KEYS:
             imgui.text(f"{key:<22}{what}")

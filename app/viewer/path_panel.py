@@ -68,25 +68,25 @@ def path_panel(app) -> None:
 
 def step_video(app) -> None:
     """A video under way renders its next frame (every frame, whether or not the panel is shown)."""
-    job = app.video_job
+    job = app.path.job
     if job is not None and not job.finished:
         app.guarded("video", job.step)
         if job.finished:
-            app.video_job = None
+            app.path.job = None
 
 
 def _contents(app) -> None:
     from app.camera_path import CameraPath, dataset_path, keyframe_from, orbit_around
 
-    st = app.path_settings
-    keys = app.path_keys
+    st = app.path
+    keys = app.path.keys
     if imgui.button("Add keyframe") and app.view.camera is not None:
         io = imgui.get_io()
         keys.append(keyframe_from(app.view.camera.camera(int(io.display_size.x), int(io.display_size.y))))
         app.update_overlays()
     imgui.same_line()
     if imgui.button("Dataset trajectory") and app.scene.cameras:
-        app.path_keys[:] = dataset_path(app.scene.cameras).keyframes
+        app.path.keys[:] = dataset_path(app.scene.cameras).keyframes
         app.update_overlays()
     imgui.same_line()
     if imgui.button("Orbit"):
@@ -94,8 +94,8 @@ def _contents(app) -> None:
         if snap is not None:
             orbit = app.guarded("orbit", orbit_around, snap.means, snap.opacities, app.scene.cameras or None)
             if orbit is not None:
-                app.path_keys[:] = orbit.keyframes
-                st["loop"] = True
+                app.path.keys[:] = orbit.keyframes
+                st.loop = True
                 app.update_overlays()
     for i in range(len(keys)):
         imgui.push_id(i)
@@ -122,27 +122,27 @@ def _contents(app) -> None:
             imgui.pop_id()
             break
         imgui.pop_id()
-    _, st["seconds"] = imgui.slider_float("seconds", st["seconds"], 1.0, 60.0)
-    _, st["fps"] = imgui.slider_int("fps", st["fps"], 10, 60)
-    _, st["loop"] = imgui.checkbox("loop", st["loop"])
-    _, st["file"] = imgui.input_text("path file", st["file"])
+    _, st.seconds = imgui.slider_float("seconds", st.seconds, 1.0, 60.0)
+    _, st.fps = imgui.slider_int("fps", st.fps, 10, 60)
+    _, st.loop = imgui.checkbox("loop", st.loop)
+    _, st.file = imgui.input_text("path file", st.file)
     if imgui.button("Save path") and len(keys) >= 2:
-        app.guarded("save path", lambda: (current_path(app).save(st["file"]), app.say(f"wrote {st['file']}")))
+        app.guarded("save path", lambda: (current_path(app).save(st.file), app.say(f"wrote {st.file}")))
     imgui.same_line()
     if imgui.button("Load path"):
-        loaded = app.guarded("load path", CameraPath.load, st["file"])
+        loaded = app.guarded("load path", CameraPath.load, st.file)
         if loaded is not None:
-            app.path_keys[:] = loaded.keyframes
+            app.path.keys[:] = loaded.keyframes
             st.update(seconds=float(loaded.duration), fps=int(round(loaded.fps)), loop=bool(loaded.loop))
             app.update_overlays()
     imgui.separator_text("Video")
-    _, st["size"] = imgui.input_int2("size", st["size"])
-    _, st["video"] = imgui.input_text("video file", st["video"])
+    _, st.size = imgui.input_int2("size", st.size)
+    _, st.video = imgui.input_text("video file", st.video)
     imgui.set_item_tooltip("a .mp4 file, or a folder for PNG frames")
     imgui.begin_disabled(app.original is None)
-    _, st["split"] = imgui.checkbox("before | after", st["split"] and app.original is not None)
+    _, st.split = imgui.checkbox("before | after", st.split and app.original is not None)
     imgui.end_disabled()
-    job = app.video_job
+    job = app.path.job
     if job is None or job.finished:
         imgui.begin_disabled(len(keys) < 2)
         if imgui.button("Render video"):
@@ -153,31 +153,31 @@ def _contents(app) -> None:
         imgui.same_line()
         if imgui.button("Cancel"):
             job.cancel()
-            app.video_job = None
+            app.path.job = None
 
 
 def current_path(app):
     from app.camera_path import CameraPath
 
-    st = app.path_settings
-    return CameraPath(list(app.path_keys), duration=float(st["seconds"]), fps=float(st["fps"]), loop=bool(st["loop"]))
+    st = app.path
+    return CameraPath(list(app.path.keys), duration=float(st.seconds), fps=float(st.fps), loop=bool(st.loop))
 
 
 def start_video(app) -> None:
-    st = app.path_settings
-    w, h = (int(v) for v in st["size"])
+    st = app.path
+    w, h = (int(v) for v in st.size)
     if w < 16 or h < 16 or w % 2 or h % 2:
         raise ValueError(f"video size must be even and at least 16x16, got {w}x{h}")
-    if st["split"] and app.original is not None:
+    if st.split and app.original is not None:
         app.view.show(app.original, 1)
-    out = Path(st["video"])
+    out = Path(st.video)
     out.parent.mkdir(parents=True, exist_ok=True)
-    app.video_job = VideoJob(app, current_path(app), out, w, h, st["split"] and app.original is not None)
+    app.path.job = VideoJob(app, current_path(app), out, w, h, st.split and app.original is not None)
 
 
 def path_line(app):
     """The path's camera centres, densely, for the 3D view (None without two keyframes)."""
-    if len(app.path_keys) < 2:
+    if len(app.path.keys) < 2:
         return None
     path = current_path(app)
     cams = path.cameras(64, 36)

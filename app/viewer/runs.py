@@ -28,9 +28,9 @@ class RunsMixin:
         """A stage saved its model: a reconstruction becomes the model later stylizations start from; a
         stylization is listed as a run (and starts the next one only when the user asks to continue)."""
         if stage == "stylize":
-            self.stylize_runs.append(Path(path))
+            self.training.runs.append(Path(path))
         else:
-            self.base_model = path
+            self.training.base_model = path
             self.paths.model = path
         self.say(f"saved {path}")
 
@@ -39,9 +39,9 @@ class RunsMixin:
 
         if not self.paths.data:
             raise ValueError("open a dataset first (COLMAP folder or transforms.json)")
-        overrides = {} if self.recon_iters is None else {"iterations": int(self.recon_iters)}
-        stages = [reconstruct_stage(self.paths.data, self.out_dir() / "reconstruction", preset=self.preset,
-                                    downscale=self.downscale, **overrides)]
+        overrides = {} if self.training.recon_iters is None else {"iterations": int(self.training.recon_iters)}
+        stages = [reconstruct_stage(self.paths.data, self.out_dir() / "reconstruction", preset=self.training.preset,
+                                    downscale=self.training.downscale, **overrides)]
         if then_stylize:
             if self.style_image is None:
                 raise ValueError("open a painting first")
@@ -60,13 +60,13 @@ class RunsMixin:
             raise ValueError("open a painting first")
         # from the model as opened or reconstructed, not the last stylized output (a run on top of a run would
         # compound the style), unless the user asks to continue the last run
-        if self.continue_last_run and self.stylize_runs:
-            model = str(self.stylize_runs[-1])
+        if self.training.continue_last_run and self.training.runs:
+            model = str(self.training.runs[-1])
         else:
-            model = self.base_model or self.paths.model or None
+            model = self.training.base_model or self.paths.model or None
         if model is None:
             raise ValueError("open a model (PLY) or reconstruct first")
-        if self.edited() and not (self.continue_last_run and self.stylize_runs):
+        if self.edited() and not (self.training.continue_last_run and self.training.runs):
             from training.model.ply_io import write_ply
 
             # the stylization starts from what the user sees: the model after the deletes and crops
@@ -81,13 +81,13 @@ class RunsMixin:
 
     def region_mask(self) -> np.ndarray | None:
         """The Gaussians a stylization may change, over the edited model (None: all)."""
-        if self.style_region == "all" or self.editor is None:
+        if self.edit.region == "all" or self.editor is None:
             return None
-        return self.editor.selected.copy() if self.style_region == "selection" else ~self.editor.selected
+        return self.editor.selected.copy() if self.edit.region == "selection" else ~self.editor.selected
 
     def set_style_region(self, region: str) -> None:
         """Which Gaussians the stylization changes; a running stylizer takes it at its next step."""
-        self.style_region = region
+        self.edit.region = region
         trainer = self.session.trainer
         if self._stage == "stylize" and self.session.running and trainer is not None and hasattr(trainer, "set_mask"):
             mask = self.region_mask()
@@ -102,7 +102,7 @@ class RunsMixin:
     def _stylize_config_copy(self):
         from dataclasses import replace
 
-        return replace(self.stylize_config)
+        return replace(self.training.stylize)
 
     def set_stylize(self, **changes: Any) -> None:
         """A slider moved: to the running stylizer (at its next step), and into the config of the next run."""
@@ -114,13 +114,13 @@ class RunsMixin:
             if refusal:
                 self.fail(refusal)
                 return
-        candidate = replace(self.stylize_config, **changes)
+        candidate = replace(self.training.stylize, **changes)
         try:
             candidate.validate()
         except ValueError as exc:
             self.fail(str(exc))
             return
-        self.stylize_config = candidate
+        self.training.stylize = candidate
         if any(k in changes for k in ("view_order", "virtual_views", "seed")):
             self.order_preview = None
             self.update_overlays()
@@ -138,7 +138,7 @@ class RunsMixin:
             from training.stylize.view_order import view_order
             from training.stylize.virtual_views import trajectory
 
-            cfg = self.stylize_config
+            cfg = self.training.stylize
             cams = self.scene.cameras
             # the extent the stylizer passes (the scene's), so the preview is the order the run will follow
             order = view_order(cams, cfg.view_order, seed=cfg.seed, extent=camera_normalization(cams)[1])

@@ -93,12 +93,12 @@ def scene_panel(app) -> None:
     imgui.separator_text("Cameras")
     if app.scene.cameras:
         n = len(app.scene.cameras)
-        index = getattr(app, "photo_index", 0)
+        index = app.window.photo_index
         changed, index = imgui.slider_int("camera", index, 0, n - 1)
         if changed:
-            app.photo_index = index
+            app.window.photo_index = index
         if imgui.button("Go to camera"):
-            app.guarded("snap", app.snap_to_camera, app.photo_index if hasattr(app, "photo_index") else 0)
+            app.guarded("snap", app.snap_to_camera, app.window.photo_index if True else 0)
         imgui.same_line()
         if imgui.button("Nearest camera"):
             app.guarded("snap", app.snap_to_nearest)
@@ -106,7 +106,7 @@ def scene_panel(app) -> None:
         if changed:
             s.photo = PHOTO_MODES[photo]
             if s.photo != "off":
-                app.guarded("photo", app.set_photo, getattr(app, "photo_index", 0))
+                app.guarded("photo", app.set_photo, app.window.photo_index)
             app.view.dirty = True
         if s.photo == "blend":
             changed, s.photo_alpha = imgui.slider_float("photo opacity", s.photo_alpha, 0.0, 1.0)

@@ -6,7 +6,9 @@ from __future__ import annotations
 import numpy as np
 from imgui_bundle import imgui
 
+from app.viewer.state import REGIONS
 from training.stylize import defaults as D
+from training.stylize.config import RANGES
 
 GREY = imgui.ImVec4(0.6, 0.6, 0.6, 1.0)
 # Settings the stylizer fixes when it starts; the panel greys them during a run and says why.
@@ -15,39 +17,32 @@ RESTART = "fixed while a stylization runs: it shapes the run from its first step
 
 def style_panel(app) -> None:
     painting(app)
-    cfg = app.stylize_config
+    cfg = app.training.stylize
     live = app.session.running and app.session.status().stage == "stylize"
-    regions = ("all", "selection", "unselected")
-    changed, i = imgui.combo("stylize", regions.index(app.style_region), ["every Gaussian", "only the selection",
+    changed, i = imgui.combo("stylize", REGIONS.index(app.edit.region), ["every Gaussian", "only the selection",
                                                                          "all but the selection"])
     if changed:
-        app.guarded("region", app.set_style_region, regions[i])
+        app.guarded("region", app.set_style_region, REGIONS[i])
     imgui.set_item_tooltip("the others keep their colours exactly (select in the Edit panel)")
     losses = list(D.LOSSES)
     changed, i = imgui.combo("loss", losses.index(cfg.loss), losses)
     if changed:
         app.set_stylize(loss=losses[i])
-    # (label, field, min, max, log scale)
-    floats = [("tau", "tau", 0.01, 10.0, True), ("epsilon", "epsilon", 0.005, 0.5, True),
-              ("lambda_guide", "lambda_guide", 0.0, 10.0, False),
-              ("lambda_content", "lambda_content", 0.0, 0.1, False)]
-    for label, name, lo, hi, log in floats:
+    # (label, config field, its current value): the spans come with the config (RANGES)
+    floats = [("tau", "tau", cfg.tau), ("epsilon", "epsilon", cfg.epsilon), ("lambda_guide", "lambda_guide",
+              cfg.lambda_guide), ("lambda_content", "lambda_content", cfg.lambda_content),
+              ("lambda_style", "lambda_style", cfg.style_weight), ("learning rate", "lr", cfg.learning_rate)]
+    for label, name, value in floats:
+        lo, hi, log = RANGES[name]
         flags = imgui.SliderFlags_.logarithmic if log else 0
-        changed, value = imgui.slider_float(label, float(getattr(cfg, name)), lo, hi, "%.4g", flags)
+        changed, value = imgui.slider_float(label, float(value), lo, hi, "%.4g", flags)
         if changed:
             app.set_stylize(**{name: value})
-    changed, k = imgui.slider_int("K", cfg.k, 1, 64)
+    changed, k = imgui.slider_int("K", cfg.k, *map(int, RANGES["k"][:2]))
     if changed:
         app.set_stylize(k=k)
-    changed, value = imgui.slider_float("lambda_style", cfg.style_weight, 0.0, 100.0, "%.3g")
-    if changed:
-        app.set_stylize(lambda_style=value)
-    changed, value = imgui.slider_float("learning rate", cfg.learning_rate, 0.001, 0.1, "%.4f",
-                                        imgui.SliderFlags_.logarithmic)
-    if changed:
-        app.set_stylize(lr=value)
     per_view = cfg.iters_per_view or 0
-    changed, per_view = imgui.slider_int("iterations per view", per_view, 0, 100,
+    changed, per_view = imgui.slider_int("iterations per view", per_view, *map(int, RANGES["iters_per_view"][:2]),
                                          "%d" if per_view else "paper's")
     if changed:
         app.set_stylize(iters_per_view=per_view or None)
@@ -63,7 +58,7 @@ def style_panel(app) -> None:
     changed, i = imgui.combo("view order", orders.index(cfg.view_order), orders)
     if changed:
         app.set_stylize(view_order=orders[i])
-    changed, n = imgui.slider_int("virtual views", cfg.virtual_views, 0, 4)
+    changed, n = imgui.slider_int("virtual views", cfg.virtual_views, *map(int, RANGES["virtual_views"][:2]))
     if changed:
         app.set_stylize(virtual_views=n)
     changed, ct = imgui.checkbox("colour transfer", cfg.color_transfer)
@@ -96,11 +91,11 @@ def painting(app) -> None:
     size = imgui.ImVec2(width, width * img.shape[0] / img.shape[1])
     pos = imgui.get_cursor_screen_pos()
     imgui.image(imgui.ImTextureRef(app.style_texture.glo), size)
-    app.painting_rect = (int(pos.x), int(pos.y), int(size.x), int(size.y))  # where it is on screen (tests look)
+    app.window.painting_rect = (int(pos.x), int(pos.y), int(size.x), int(size.y))  # where it is on screen (tests look)
     trainer = app.session.trainer
     capacity = trainer.capacity_map() if trainer is not None and hasattr(trainer, "capacity_map") else None
-    changed, app.show_capacity = imgui.checkbox("capacity map", getattr(app, "show_capacity", True))
-    if capacity is not None and app.show_capacity:
+    changed, app.window.show_capacity = imgui.checkbox("capacity map", app.window.show_capacity)
+    if capacity is not None and app.window.show_capacity:
         heat = heatmap(capacity)
         if app.capacity_texture is None or app.capacity_texture.size != (heat.shape[1], heat.shape[0]):
             if app.capacity_texture is not None:

@@ -6,6 +6,8 @@ from __future__ import annotations
 import numpy as np
 from imgui_bundle import imgui, implot
 
+from app.viewer.view3d import RANGES
+
 RED = imgui.ImVec4(1.0, 0.4, 0.35, 1.0)
 
 
@@ -15,15 +17,15 @@ def training_panel(app) -> None:
     running = session.running
     imgui.begin_disabled(running)
     presets = ("quick", "standard", "paper")
-    changed, i = imgui.combo("preset", presets.index(app.preset), list(presets))
+    changed, i = imgui.combo("preset", presets.index(app.training.preset), list(presets))
     if changed:
-        app.preset = presets[i]
-    changed, iters = imgui.input_int("iterations (0: preset's)", app.recon_iters or 0, 100, 1000)
+        app.training.preset = presets[i]
+    changed, iters = imgui.input_int("iterations (0: preset's)", app.training.recon_iters or 0, 100, 1000)
     if changed:
-        app.recon_iters = iters if iters > 0 else None
-    changed, down = imgui.input_int("downscale (0: preset's)", app.downscale or 0)
+        app.training.recon_iters = iters if iters > 0 else None
+    changed, down = imgui.input_int("downscale (0: preset's)", app.training.downscale or 0)
     if changed:
-        app.downscale = down if down > 0 else None
+        app.training.downscale = down if down > 0 else None
     if imgui.button("Reconstruct"):
         app.guarded("reconstruct", app.start_reconstruction)
     imgui.same_line()
@@ -32,8 +34,8 @@ def training_panel(app) -> None:
     imgui.same_line()
     if imgui.button("Reconstruct + stylize"):
         app.guarded("run", app.start_reconstruction, then_stylize=True)
-    imgui.begin_disabled(not app.stylize_runs)
-    _, app.continue_last_run = imgui.checkbox("continue the last stylized run", app.continue_last_run)
+    imgui.begin_disabled(not app.training.runs)
+    _, app.training.continue_last_run = imgui.checkbox("continue the last stylized run", app.training.continue_last_run)
     imgui.end_disabled()
     imgui.set_item_tooltip("off: Stylize starts from the model as opened or reconstructed (runs do not compound); "
                            "on: from the last run's output")
@@ -54,21 +56,24 @@ def training_panel(app) -> None:
     imgui.same_line()
     if imgui.button("Stop"):
         session.stop()
-    changed, app.pause_at_value = imgui.input_int("pause at", getattr(app, "pause_at_value", 0))
+    changed, app.training.pause_at = imgui.input_int("pause at", app.training.pause_at)
     if changed:
-        session.pause_at(app.pause_at_value if app.pause_at_value > 0 else None)
+        session.pause_at(app.training.pause_at if app.training.pause_at > 0 else None)
     imgui.end_disabled()
-    changed, share = imgui.slider_float("training share", app.view.settings.training_share, 0.05, 0.95)
+    changed, share = imgui.slider_float("training share", app.view.settings.training_share,
+                                        *RANGES["training_share"])
     if changed:
         app.view.settings.training_share = share
     imgui.set_item_tooltip("while a trainer runs, the view draws at most (1 - this) of the time: more leaves "
                            "the trainer more of the CPU, less makes the view smoother")
-    changed, app.refresh_s = imgui.slider_float("view refresh (s)", app.refresh_s, 0.05, 5.0)
+    changed, app.training.refresh_s = imgui.slider_float("view refresh (s)", app.training.refresh_s,
+                                                         *RANGES["refresh_s"])
     imgui.set_item_tooltip("how often the view takes the trainer's latest model (each redraw costs it time)")
     s = app.view.settings
-    changed, s.training_scale = imgui.slider_float("live view resolution", s.training_scale, 0.25, 1.0)
+    changed, s.training_scale = imgui.slider_float("live view resolution", s.training_scale,
+                                                       *RANGES["training_scale"])
     app.view.dirty |= changed
-    changed, s.motion_lod = imgui.slider_float("detail while moving", s.motion_lod, 0.05, 1.0)
+    changed, s.motion_lod = imgui.slider_float("detail while moving", s.motion_lod, *RANGES["motion_lod"])
     imgui.set_item_tooltip("the share of the Gaussians (the most opaque and largest) drawn while the camera moves")
 
     imgui.separator_text("Status")
@@ -91,9 +96,9 @@ def training_panel(app) -> None:
         imgui.text_colored(RED, app.error)
         imgui.pop_text_wrap_pos()
     loss_curves(app)
-    if app.stylize_runs:
+    if app.training.runs:
         imgui.separator_text("Stylized runs")
-        for path in app.stylize_runs:
+        for path in app.training.runs:
             imgui.text(str(path))
 
 
@@ -128,6 +133,6 @@ def messages_panel(app) -> None:
             imgui.text_colored(RED, msg)
         else:
             imgui.text_wrapped(msg)
-    if getattr(app, "_messages_seen", 0) != len(app.messages):
+    if app.window.messages_seen != len(app.messages):
         imgui.set_scroll_here_y(1.0)
-        app._messages_seen = len(app.messages)
+        app.window.messages_seen = len(app.messages)

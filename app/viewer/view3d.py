@@ -21,6 +21,11 @@ BURST_S = 0.6  # drawing time the view may spend at once after a quiet spell whi
 PHOTO_MODES = ("off", "blend", "side")
 
 
+# The span each live-view setting's slider offers (the settings are plain fields: any value in it is valid).
+RANGES = {"training_share": (0.05, 0.95), "training_scale": (0.25, 1.0), "motion_lod": (0.05, 1.0),
+          "refresh_s": (0.05, 5.0)}
+
+
 @dataclass
 class RenderSettings:
     mode: str = "color"

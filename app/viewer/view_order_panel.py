@@ -48,7 +48,7 @@ def view_order_panel(app) -> None:
         pos = int(np.argmin(d))
         if d[pos] < 15:
             app.snap_to_camera(items[pos][0])
-    app.drawn_order = [source for source, _, virtual in items if not virtual]
+    app.window.drawn_order = [source for source, _, virtual in items if not virtual]
     imgui.text(f"{len(items)} views in order" + (f", now at {current}" if current is not None else "")
                + "; click a camera to go there")
 

@@ -30,7 +30,7 @@ def _contents(app) -> None:
     origin = imgui.get_cursor_screen_pos()
     scale = io.display_framebuffer_scale
     width, height = max(int(avail.x), 1), max(int(avail.y), 1)
-    app.view_rect = (int(origin.x), int(origin.y), width, height)  # window coordinates (logical pixels)
+    app.window.view_rect = (int(origin.x), int(origin.y), width, height)  # window coordinates (logical pixels)
     size = (max(int(width * scale.x), 1), max(int(height * scale.y), 1))  # framebuffer pixels
     view = app.view
     view.draw(size, split_ready=app.original is not None, training=app.training_now())
@@ -44,14 +44,14 @@ def _contents(app) -> None:
                | imgui.ButtonFlags_.mouse_button_middle)
     imgui.invisible_button("3d view canvas", imgui.ImVec2(width, height), buttons)
     hovered, active = imgui.is_item_hovered(), imgui.is_item_active()
-    app.view_hovered = hovered or active
+    app.window.view_hovered = hovered or active
     from app.viewer.edit_panel import handle_gesture
 
     handle_gesture(app, hovered, active)
     span = app.fly_span()
-    view.handle_mouse(imgui, hovered, active, left_orbits=app.tool == "orbit")
+    view.handle_mouse(imgui, hovered, active, left_orbits=app.edit.tool == "orbit")
     if not app.editor_shortcut_held():
-        view.handle_keys(imgui, min(app.frame_dt, 0.1), fly_speed=0.5 * span,
+        view.handle_keys(imgui, min(app.window.frame_dt, 0.1), fly_speed=0.5 * span,
                          enabled=not io.want_text_input and (imgui.is_window_focused() or hovered))
     else:
         view.flying = False

@@ -15,6 +15,14 @@ DEFAULT_LAMBDA_STYLE = D.LAMBDA_STYLE
 DEFAULT_LR = D.LR
 
 
+# The useful span of each numeric setting (low, high, logarithmic): what a live control offers. ``validate`` is
+# the rule a value must meet; a value outside the span but within the rule (from the CLI) is kept, not clamped.
+RANGES: dict[str, tuple[float, float, bool]] = {
+    "tau": (0.01, 10.0, True), "epsilon": (0.005, 0.5, True), "lambda_guide": (0.0, 10.0, False),
+    "lambda_content": (0.0, 0.1, False), "lambda_style": (0.0, 100.0, False), "lr": (0.001, 0.1, True),
+    "k": (1, 64, False), "iters_per_view": (0, 100, False), "virtual_views": (0, 4, False)}
+
+
 @dataclass
 class StylizeConfig:
     """Stylization settings; ``None`` means "from the preset / the paper's schedule"."""
