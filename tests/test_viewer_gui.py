@@ -286,3 +286,31 @@ Path(os.environ["RESULT"]).write_text(json.dumps(found))
         assert all(tuple(r) in rows for r in means.tolist())  # whole Gaussians of the source, never a mix
         assert last is None or len(means) <= last  # deletions only ever shrink the model
         last = len(means)
+
+
+def test_dropped_files_open_as_model_painting_and_dataset(demo_scene, tmp_path):
+    """GLFW's drop callback with what a file manager drops: a PLY opens as the model, an image as the painting, a
+    folder as the dataset; a file of another kind is one line in the window and the session goes on."""
+    scene_dir, style, model = demo_scene
+    other = tmp_path / "notes.txt"
+    other.write_text("not a model")
+    found = run_gui(PRELUDE + f"""
+app = ViewerApp(Paths(out=str(OUT / "out")))
+
+def test(ctx):
+    app.on_drop(None, [{str(model)!r}, {str(style)!r}, {str(scene_dir)!r}, {str(other)!r}])
+    ctx.yield_(3)
+    found["model"] = app.paths.model
+    found["count"] = app.editor.count if app.editor is not None else 0
+    found["style"] = app.paths.style
+    found["painting_shape"] = list(app.style_image.shape) if app.style_image is not None else []
+    found["cameras"] = len(app.scene.cameras)
+    found["error"] = app.error
+
+run(app, test)
+Path(os.environ["RESULT"]).write_text(json.dumps(found))
+""", tmp_path)
+    assert found["model"] == str(model) and found["count"] == 4000
+    assert found["style"] == str(style) and found["painting_shape"][2] == 3
+    assert found["cameras"] == 32
+    assert found["error"].startswith(str(other)) and "\n" not in found["error"]

@@ -164,8 +164,10 @@ class ViewerApp(RunsMixin):
         elif p.is_dir() or p.name == "transforms.json":
             self.open_data(path)
         else:
-            raise ValueError(f"{path}: not a model (.ply, .splat), a painting (an image) or a dataset (a folder or "
-                             "transforms.json)")
+            from training.core.errors import InputError
+
+            raise InputError(path, "not a model (.ply, .splat), a painting (an image) or a dataset (a folder or "
+                                   "transforms.json)")
 
     def on_drop(self, _window, paths) -> None:
         """GLFW's drop callback (during its event polling): queued, opened at the next frame."""
