@@ -113,7 +113,8 @@ def loss_curves(app) -> None:
     stage = app.session.status().stage
     steps = np.array([h["step"] for h in history], dtype=np.float64)
     if implot.begin_plot("losses", imgui.ImVec2(-1, 170)):
-        implot.setup_axes("step", "loss")
+        fit = implot.AxisFlags_.auto_fit.value  # the curves grow every step: keep them all in view
+        implot.setup_axes("step", "loss", fit, fit)
         implot.setup_axis_scale(implot.ImAxis_.y1, implot.Scale_.log10)
         for key in CURVES.get(stage, ("loss",)):
             ys = np.array([h.get(key, np.nan) for h in history], dtype=np.float64)
