@@ -162,11 +162,24 @@ def test_chooser_times_every_candidate_and_skips_one_that_raises(ctx):
     def broken():
         raise RuntimeError("driver said no\nsecond line")
 
+    released = []
+
+    def fails_later():
+        calls = []
+
+        def frame(camera):
+            calls.append(camera)
+            if len(calls) == 2:
+                raise MemoryError("out of device memory")
+
+        return frame, lambda: released.append(True)
+
     candidates = [gl_candidate(ctx, snap, "gl-cpu-sort", "f4"), cuda_candidate(ctx, snap, backend="torch"),
-                  Candidate("gl-gpu-sort", "f2", broken)]
+                  Candidate("gl-gpu-sort", "f2", broken), Candidate("gl-gpu-sort", "f4", fails_later)]
     choice = choose_display_path(ctx, snap, viewer_camera(), (64, 48), frames=2, candidates=candidates)
     assert set(choice.frame_ms) == {"gl-cpu-sort/f4", "cuda"}
     assert choice.skipped["gl-gpu-sort/f2"] == "RuntimeError: driver said no"
+    assert choice.skipped["gl-gpu-sort/f4"] == "MemoryError: out of device memory" and released == [True]
     assert choice.label() == min(choice.frame_ms, key=choice.frame_ms.get)
     assert all(t > 0 for t in choice.frame_ms.values())
 

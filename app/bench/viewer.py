@@ -7,7 +7,8 @@ context (EGL unless ``--backend``), on ``app.bench.raster``'s scene (a fixed amo
   into an RGBA8 framebuffer, ``glFinish``; ``frame_half_ms`` the same at half resolution (the viewer's size while
   the camera moves); ``frame_moving_ms`` at half resolution drawing the 35% most important Gaussians (the viewer's
   moving-camera preview on software GL); ``frame_f2_ms`` with a half-float accumulation target, ``frame_f1_ms`` with an
-  8-bit one (dithered, the default for f1), ``frame_f1_plain_ms`` 8-bit without dithering; ``frame_instanced_ms`` (or
+  8-bit one (dithered, the default for f1), ``frame_f1_plain_ms`` 8-bit without dithering (these four frame
+  columns are timed round-robin, one renderer each); ``frame_instanced_ms`` (or
   ``frame_geometry_ms``) with the quad path that ``quads="auto"`` did not pick (``quads`` names the one it did);
 - ``sort_float_ms`` / ``sort_u16_ms``: numpy back-to-front order with exact float keys / 16-bit keys;
   ``upload_ms``: writing that order to the index buffer (with ``glFinish``); ``sort_upload_ms``: the renderer's
@@ -58,6 +59,18 @@ def _median_ms(fn, repeat: int) -> float:
         fn()
         times.append(time.perf_counter() - t0)
     return 1000.0 * statistics.median(times)
+
+
+def _interleaved_median_ms(fns: dict, repeat: int) -> dict[str, float]:
+    """Median milliseconds of each function, run in turn (one warm-up round first)."""
+    times = {k: [] for k in fns}
+    for rnd in range(max(1, repeat) + 1):
+        for key, fn in fns.items():
+            t0 = time.perf_counter()
+            fn()
+            if rnd > 0:
+                times[key].append(time.perf_counter() - t0)
+    return {k: 1000.0 * statistics.median(v) for k, v in times.items()}
 
 
 def _display_paths(ctx, scene, w: int, h: int, repeat: int) -> dict:
@@ -118,16 +131,20 @@ def run(args: argparse.Namespace) -> list[dict]:
             renderer.render(cam, off.fbo, scale=scale, lod=lod)
             ctx.finish()
 
-        row["frame_ms"] = _median_ms(frame, args.repeat)
+        # The accumulation formats are timed round-robin, so that a change in the machine's load (a shared
+        # machine) falls on all of them alike rather than on whichever ran at that moment.
+        formats = {"frame_f2_ms": dict(accum_dtype="f2"), "frame_f1_ms": dict(accum_dtype="f1"),
+                   "frame_f1_plain_ms": dict(accum_dtype="f1", dither=False)}
+        others = {key: SplatRenderer(ctx, sort_tolerance_deg=1e9, **options) for key, options in formats.items()}
+        for rf in others.values():
+            rf.set_splats(means, scales, quats, opac, sh, 3)
+        row.update(_interleaved_median_ms({"frame_ms": frame, **{k: (lambda rf=rf: frame(1.0, rf))
+                                                                  for k, rf in others.items()}}, args.repeat))
+        for rf in others.values():
+            rf.release()
         row["frame_half_ms"] = _median_ms(lambda: frame(0.5), args.repeat)
         # the viewer's moving-camera frame on software GL: half resolution, the 35% most important Gaussians
         row["frame_moving_ms"] = _median_ms(lambda: frame(0.5, lod=0.35), args.repeat)
-        for key, options in (("frame_f2_ms", dict(accum_dtype="f2")), ("frame_f1_ms", dict(accum_dtype="f1")),
-                             ("frame_f1_plain_ms", dict(accum_dtype="f1", dither=False))):
-            rf = SplatRenderer(ctx, sort_tolerance_deg=1e9, **options)
-            rf.set_splats(means, scales, quats, opac, sh, 3)
-            row[key] = _median_ms(lambda: frame(1.0, rf), args.repeat)
-            rf.release()
         other = "instanced" if r.quads == "geometry" else "geometry"
         ro = SplatRenderer(ctx, sort_tolerance_deg=1e9, quads=other)
         ro.set_splats(means, scales, quats, opac, sh, 3)

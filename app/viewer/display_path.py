@@ -181,19 +181,43 @@ def turning_cameras(camera, frames: int, size: tuple[int, int], degrees: float =
     return out
 
 
-def time_candidate(candidate: Candidate, cameras: list) -> float:
-    """Median milliseconds of a frame over ``cameras[1:]`` after a warm-up frame on ``cameras[0]``."""
-    frame, release = candidate.make()
+def time_candidates(candidates: list[Candidate], cameras: list, skipped: dict[str, str]) -> dict[str, float]:
+    """Median milliseconds of a frame of each candidate over ``cameras[1:]`` after a warm-up frame on
+    ``cameras[0]``, the candidates drawing in turn (a change in a shared machine's load then falls on all of them
+    alike). A candidate that raises is dropped, its reason in ``skipped``."""
+    live: dict[str, tuple[Callable, Callable]] = {}
+    times: dict[str, list[float]] = {}
+
+    def fail(label: str, exc: Exception) -> None:
+        skipped[label] = f"{type(exc).__name__}: {exc}".splitlines()[0][:200]
+        frame_release = live.pop(label, None)
+        if frame_release is not None:
+            try:
+                frame_release[1]()
+            except Exception:  # already failing; its reason is recorded
+                pass
+
     try:
-        frame(cameras[0])  # shader compiles, first upload, allocations
-        times = []
+        for cand in candidates:
+            try:
+                live[cand.label] = cand.make()
+                live[cand.label][0](cameras[0])  # shader compiles, first upload, allocations
+                times[cand.label] = []
+            except Exception as exc:  # a path that fails on this machine (driver, CUDA, gsplat build)
+                fail(cand.label, exc)
         for cam in cameras[1:]:
-            t0 = time.perf_counter()
-            frame(cam)
-            times.append(time.perf_counter() - t0)
-        return 1000.0 * statistics.median(times)
+            for label in list(live):
+                try:
+                    t0 = time.perf_counter()
+                    live[label][0](cam)
+                    times[label].append(time.perf_counter() - t0)
+                except Exception as exc:
+                    fail(label, exc)
+                    times.pop(label, None)
     finally:
-        release()
+        for _, release in live.values():
+            release()
+    return {k: 1000.0 * statistics.median(v) for k, v in times.items() if v}
 
 
 def choose_display_path(ctx, snap, camera, size: tuple[int, int], *, override: str | None = None,
@@ -223,12 +247,7 @@ def choose_display_path(ctx, snap, camera, size: tuple[int, int], *, override: s
     else:
         note = ""
     cameras = turning_cameras(camera, frames, size)
-    times: dict[str, float] = {}
-    for cand in candidates:
-        try:
-            times[cand.label] = time_candidate(cand, cameras)
-        except Exception as exc:  # a path that fails on this machine (driver, CUDA, gsplat build) is not chosen
-            skipped[cand.label] = f"{type(exc).__name__}: {exc}".splitlines()[0][:200]
+    times = time_candidates(candidates, cameras, skipped)
     if not times:
         return DisplayChoice("gl-cpu-sort", "f4", skipped=skipped,
                              reason=note + "no candidate could be timed; the GL renderer with the CPU sort")
