@@ -11,7 +11,7 @@ import pytest
 from app.viewer.camera_control import ViewerCamera
 from app.viewer.display_cuda import CudaDisplay, unsupported
 from app.viewer.display_path import (Candidate, choose_display_path, cuda_candidate, default_candidates,
-                                     gl_candidate)
+                                     gl_candidate, pick)
 from renderer_gl import Offscreen, SplatRenderer, create_context
 from tests.gl_scenes import psnr
 from training.core.messages import ModelSnapshot
@@ -153,7 +153,7 @@ def test_chooser_picks_gl_on_a_machine_without_cuda(ctx):
         assert choice.path == "gl-cpu-sort" and "software GL" in choice.skipped["gl-gpu-sort"]
         assert set(choice.frame_ms) == {"gl-cpu-sort/f4", "gl-cpu-sort/f2"}
     assert choice.renderer_options()["accum_dtype"] in ("f4", "f2")
-    assert min(choice.frame_ms.values()) == choice.frame_ms[choice.label()]
+    assert choice.frame_ms[choice.label()] <= 1.05 * min(choice.frame_ms.values())
 
 
 def test_chooser_times_every_candidate_and_skips_one_that_raises(ctx):
@@ -180,7 +180,10 @@ def test_chooser_times_every_candidate_and_skips_one_that_raises(ctx):
     assert set(choice.frame_ms) == {"gl-cpu-sort/f4", "cuda"}
     assert choice.skipped["gl-gpu-sort/f2"] == "RuntimeError: driver said no"
     assert choice.skipped["gl-gpu-sort/f4"] == "MemoryError: out of device memory" and released == [True]
-    assert choice.label() == min(choice.frame_ms, key=choice.frame_ms.get)
+    fastest = min(choice.frame_ms, key=choice.frame_ms.get)
+    first_close = next(c.label for c in candidates if c.label in choice.frame_ms
+                       and choice.frame_ms[c.label] <= 1.05 * choice.frame_ms[fastest])
+    assert choice.label() == first_close
     assert all(t > 0 for t in choice.frame_ms.values())
 
 
@@ -206,3 +209,11 @@ def test_an_override_wins_and_one_that_cannot_run_is_measured_instead(ctx, monke
         choice = choose_display_path(ctx, snap, viewer_camera(), (64, 48), override="cuda", frames=1,
                                      candidates=real, skipped=skipped)
         assert choice.path.startswith("gl-") and "cannot run here" in choice.reason
+
+
+def test_a_later_candidate_must_be_clearly_faster_to_be_chosen():
+    cands = [Candidate("gl-cpu-sort", "f4", None), Candidate("gl-cpu-sort", "f2", None), Candidate("cuda", None, None)]
+    assert pick(cands, {"gl-cpu-sort/f4": 10.4, "gl-cpu-sort/f2": 10.0, "cuda": 10.2}).label == "gl-cpu-sort/f4"
+    assert pick(cands, {"gl-cpu-sort/f4": 11.0, "gl-cpu-sort/f2": 10.0, "cuda": 10.4}).label == "gl-cpu-sort/f2"
+    assert pick(cands, {"gl-cpu-sort/f4": 48.0, "gl-cpu-sort/f2": 12.0, "cuda": 3.0}).label == "cuda"
+    assert pick(cands, {"gl-cpu-sort/f2": 12.0, "cuda": 3.0}).label == "cuda"  # f4 failed: not timed
