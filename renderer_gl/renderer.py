@@ -118,6 +118,7 @@ class SplatRenderer:
         self._vaos: dict[tuple[int, str], tuple[moderngl.Buffer, moderngl.VertexArray]] = {}
         self._accum = None
         self._accum_fbo = None
+        self._accum_targets: dict[tuple[int, int], tuple[moderngl.Texture, moderngl.Framebuffer]] = {}
         self._photo = ctx.texture((1, 1), 3, np.zeros(3, np.float32).tobytes(), dtype="f4")
         self._line_vbo = None
         self._line_vao = None
@@ -209,12 +210,20 @@ class SplatRenderer:
 
     # ------------------------------------------------------------------------------------------------ drawing
     def _accum_target(self, size: tuple[int, int]) -> moderngl.Framebuffer:
+        # The two latest sizes are kept: the viewer alternates between its moving (half) and still (full) size,
+        # and re-creating a 1080p RGBA32F target (33 MB) at every switch costs an allocation each time.
         if self._accum is None or self._accum.size != size:
-            if self._accum is not None:
-                self._accum_fbo.release()
-                self._accum.release()
-            self._accum = self.ctx.texture(size, 4, dtype=self.accum_dtype)
-            self._accum_fbo = self.ctx.framebuffer(color_attachments=[self._accum])
+            cached = self._accum_targets.pop(size, None)
+            if cached is None:
+                tex = self.ctx.texture(size, 4, dtype=self.accum_dtype)
+                cached = (tex, self.ctx.framebuffer(color_attachments=[tex]))
+            self._accum_targets[size] = cached
+            while len(self._accum_targets) > 2:
+                old_size = next(iter(self._accum_targets))
+                tex, fbo = self._accum_targets.pop(old_size)
+                fbo.release()
+                tex.release()
+            self._accum, self._accum_fbo = cached
         return self._accum_fbo
 
     def _vao(self, slot: int, kind: str, index: moderngl.Buffer | None = None) -> moderngl.VertexArray:
@@ -435,7 +444,11 @@ class SplatRenderer:
             self.remove(s)
         if self._sorter is not None:
             self._sorter.close()
-        for obj in (self._accum_fbo, self._accum, self._photo, self._line_vao, self._line_vbo, self._fullscreen,
+        for tex, fbo in self._accum_targets.values():
+            fbo.release()
+            tex.release()
+        self._accum_targets.clear()
+        for obj in (self._photo, self._line_vao, self._line_vbo, self._fullscreen,
                     self._corners, self._splat_prog, self._point_prog, self._resolve_prog, self._line_prog):
             if obj is not None:
                 obj.release()

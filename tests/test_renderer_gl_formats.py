@@ -102,3 +102,19 @@ def test_bad_settings_are_refused(ctx):
         SplatRenderer(ctx, accum_dtype="f8")
     with pytest.raises(ValueError, match="sort_on"):
         SplatRenderer(ctx, sort_on="tpu")
+
+
+def test_the_moving_and_still_sizes_keep_their_accumulation_targets(ctx):
+    """The viewer alternates between half size (moving) and full size (still): neither target is re-created."""
+    cam, _, _ = camera()
+    r = SplatRenderer(ctx)
+    r.set_splats(*overlapping(), 2)
+    r.splat_pass(cam)
+    full = r._accum
+    r.splat_pass(cam, scale=0.5)
+    half = r._accum
+    r.splat_pass(cam)
+    assert r._accum is full and half is not full and half.size == (64, 48)
+    r.splat_pass(cam, scale=0.25)  # a third size: the least recently used one (half) goes
+    assert set(r._accum_targets) == {(128, 96), (32, 24)}
+    r.release()
