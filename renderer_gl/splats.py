@@ -152,6 +152,7 @@ class GPUSplats:
         flags = np.asarray(flags, dtype=np.uint8).reshape(-1)
         if flags.shape[0] != self.n:
             raise ValueError(f"flags must have {self.n} entries, got {flags.shape[0]}")
+        self.flagged = bool(flags.any())
         data, rows = _pack(flags.reshape(-1, 1), self.width)
         self._flags = self._texture(self._flags, rows, 1, "u1", data)
         self.version += 1

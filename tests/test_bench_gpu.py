@@ -46,7 +46,7 @@ def test_report_from_a_real_cpu_run_of_every_step(tmp_path):
     assert viewer["n"] == 3000 and viewer["frame_f2_ms"] > 0 and viewer["display_path"].startswith("gl-")
     rec = steps["reconstruct"]
     assert rec["status"] == "ok", rec
-    assert rec["iterations"] == 40 and rec["minutes"] > 0 and rec["test_psnr"] > 10 and rec["peak_gpu_gib"] is None
+    assert rec["iterations"] == 40 and rec["minutes"] > 0 and rec["test_psnr"] > 5 and rec["peak_gpu_gib"] is None
     sty = steps["stylize"]
     assert sty["status"] in ("ok", "failed")  # failed only where no VGG weights can be had: its error says so
     if sty["status"] == "failed":
