@@ -88,7 +88,7 @@ def _display_paths(ctx, scene, w: int, h: int, repeat: int) -> dict:
     # the bench camera (identity pose, f = 0.9 w), orbiting the middle of the scene's box
     fov = float(np.degrees(2 * np.arctan(h / (2 * float(scene[6][1, 1])))))
     cam = ViewerCamera(np.eye(3), np.zeros(3), 5.0, fov, up=np.array([0.0, -1.0, 0.0]))
-    choice = choose_display_path(ctx, snap, cam, (w, h), override="auto", frames=max(1, repeat))
+    choice = choose_display_path(ctx, snap, cam, (w, h), override="auto", frames=max(1, repeat), always_time=True)
     out = {f"path_{label}_ms": ms for label, ms in choice.frame_ms.items()}
     out["display_path"] = choice.label()
     out["paths_skipped"] = "; ".join(f"{k}: {v}" for k, v in choice.skipped.items())

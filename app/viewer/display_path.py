@@ -9,7 +9,8 @@ Candidates (``PATHS``):
   sees a CUDA device and gsplat imports.
 
 A GL path is timed with each accumulation format that shows no visible loss (f4, and f2: 46 dB against the
-training rasterizer on the fox, docs/gpu.md) and keeps the faster. Each candidate draws a few frames of a turning
+training rasterizer on the fox, docs/gpu.md) and keeps the faster; on software GL with f4 alone (f2 is slower
+there), so that a machine with one candidate spends no time choosing. Each candidate draws a few frames of a turning
 camera (so the sort is in each frame, as when the user turns the view), in turn; the fastest median wins, unless
 an earlier candidate (in the order above, f4 before f2) is within 5% of it. A candidate that
 cannot run, or raises, is skipped with its reason. An override (``override=``, or the environment variable
@@ -168,8 +169,16 @@ def default_candidates(ctx, snap) -> tuple[list[Candidate], dict[str, str]]:
         elif path == "cuda":
             candidates.append(cuda_candidate(ctx, snap))
         else:
-            candidates += [gl_candidate(ctx, snap, path, fmt) for fmt in GL_FORMATS]
+            candidates += [gl_candidate(ctx, snap, path, fmt) for fmt in gl_formats(ctx)]
     return candidates, skipped
+
+
+def gl_formats(ctx) -> tuple[str, ...]:
+    """The accumulation formats worth timing: f4 alone on software GL, where f2 measured 4-10% slower (llvmpipe
+    converts half floats in its blend code; docs/gpu.md), so that its only candidate needs no timing at all."""
+    from renderer_gl.context import is_software_gl
+
+    return ("f4",) if is_software_gl(ctx) else GL_FORMATS
 
 
 def turning_cameras(camera, frames: int, size: tuple[int, int], degrees: float = 1.0) -> list:
@@ -232,12 +241,13 @@ def pick(candidates: list[Candidate], times: dict[str, float]) -> Candidate:
 
 def choose_display_path(ctx, snap, camera, size: tuple[int, int], *, override: str | None = None,
                         frames: int = 3, candidates: list[Candidate] | None = None,
-                        skipped: dict[str, str] | None = None) -> DisplayChoice:
+                        skipped: dict[str, str] | None = None, always_time: bool = False) -> DisplayChoice:
     """Time each candidate drawing ``snap`` (a ModelSnapshot) for ``frames`` frames of ``camera`` (a ViewerCamera)
     turning at ``size``, and return the fastest. ``override`` ("auto" or None: measure; a name from PATHS, or
     "PATH/FORMAT" for a GL path: use that, unless this machine cannot run it: then measure, and say so in
     ``reason``) defaults to the environment variable SPLATSTYLER_DISPLAY_PATH.
-    ``candidates``/``skipped`` replace ``default_candidates`` (tests, benchmarks)."""
+    ``candidates``/``skipped`` replace ``default_candidates`` (tests, benchmarks). A single candidate is returned
+    untimed unless ``always_time`` (benchmarks)."""
     if override is None:
         override = os.environ.get(ENV, "auto").strip().lower() or "auto"
     if candidates is None:
@@ -256,6 +266,10 @@ def choose_display_path(ctx, snap, camera, size: tuple[int, int], *, override: s
         note = f"{override} was asked for but cannot run here ({skipped[path]}); "
     else:
         note = ""
+    if len(candidates) == 1 and not always_time:  # nothing to choose between: no frames spent timing
+        c = candidates[0]
+        return DisplayChoice(c.path, c.accum_dtype, skipped=skipped,
+                             reason=note + "the only candidate on this machine (others: see skipped)")
     cameras = turning_cameras(camera, frames, size)
     times = time_candidates(candidates, cameras, skipped)
     if not times:
