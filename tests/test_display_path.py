@@ -53,11 +53,14 @@ def gl_picture(ctx, snap, cam, size, **render_kw) -> np.ndarray:
     return img
 
 
-def test_cuda_path_on_torch_draws_what_the_gl_renderer_draws(ctx):
+@pytest.mark.parametrize("backend", ["torch", "cpu"])
+def test_cuda_path_on_cpu_backends_draws_what_the_gl_renderer_draws(ctx, backend):
+    """The CUDA display path's code (camera, upload, texture, quad) on CPU tensors; "cuda" differs only in the
+    rasterizer and in the copy through pinned memory."""
     snap = snapshot()
     cam = viewer_camera()
     size = (128, 96)
-    d = CudaDisplay(ctx, backend="torch")
+    d = CudaDisplay(ctx, backend=backend)
     assert d.set_model(snap)
     off = Offscreen(ctx, *size)
     d.draw(cam, off.fbo, background=BG)
