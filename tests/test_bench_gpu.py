@@ -27,7 +27,7 @@ def test_without_cuda_it_says_so_in_one_line_and_exits_2(tmp_path, capsys):
 
 @pytest.mark.slow
 def test_report_from_a_real_cpu_run_of_every_step(tmp_path):
-    """Every step through the code bench gpu runs, on the CPU at toy sizes (about 40 s on 2 cores)."""
+    """Every step through the code bench gpu runs, on the CPU at toy sizes (10 s on 2 quiet cores, 40 s under load)."""
     from assets.demo.scene import make_demo_scene, write_demo_scene
 
     scene = tmp_path / "scene"
