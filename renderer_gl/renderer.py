@@ -30,6 +30,9 @@ MODES = ("color", "depth", "alpha", "points", "ellipsoids")
 # one thread). "auto" picks geometry on software GL. Both draw the same pixels.
 QUAD_PATHS = ("auto", "instanced", "geometry")
 PHOTO_MODES = (None, "blend", "side")
+# The accumulation target's texel type: float32, float16, 8-bit unsigned normalised (moderngl's names).
+ACCUM_DTYPES = ("f4", "f2", "f1")
+SORT_ON = ("cpu", "gpu")
 _SPLAT_MODE = {"color": 0, "alpha": 0, "depth": 1, "ellipsoids": 2}
 _RESOLVE_MODE = {"color": 0, "points": 0, "ellipsoids": 0, "depth": 1, "alpha": 2}
 
@@ -63,22 +66,35 @@ class SplatRenderer:
     """Real-time renderer of 3D Gaussians; see renderer_gl/__init__.py and docs/renderer.md.
 
     ``accum_dtype`` is the accumulation target's texel type: "f4" (float32, the default: parity with the
-    training rasterizer), "f2" (half) or "f1" (8-bit, fastest on software GL). ``sort_tolerance_deg``: the view
+    training rasterizer), "f2" (half: what a GPU blends at full rate; docs/gpu.md) or "f1" (8-bit, fastest on
+    software GL). ``dither``: round each blend into an 8-bit target stochastically (unbiased) rather than to
+    nearest, which loses faint splats; None turns it on for "f1" only (the others need none). ``sort_on``: "cpu"
+    (numpy, renderer_gl/sort.py) or "gpu" (the compute-shader sort of renderer_gl/gpu_sort.py, whose order never
+    leaves the GPU: ten times faster from 500k splats on an H100, far slower on software GL; needs GL 4.3).
+    ``sort_tolerance_deg``: the view
     direction may turn this much before the order is recomputed. ``background_sort``: sort on a worker thread
     and draw with the previous order meanwhile (for an interactive loop; off for exact one-off renders).
     """
 
     def __init__(self, ctx: moderngl.Context, accum_dtype: str = "f4", sort_precision: str = "auto",
-                 sort_tolerance_deg: float = 0.1, background_sort: bool = False, quads: str = "auto"):
-        if accum_dtype not in ("f1", "f2", "f4"):
+                 sort_tolerance_deg: float = 0.1, background_sort: bool = False, quads: str = "auto",
+                 dither: bool | None = None, sort_on: str = "cpu"):
+        if accum_dtype not in ACCUM_DTYPES:
             raise ValueError(f"accum_dtype must be f1, f2 or f4, got {accum_dtype!r}")
         if quads not in QUAD_PATHS:
             raise ValueError(f"quads must be one of {', '.join(QUAD_PATHS)}, got {quads!r}")
+        if sort_on not in SORT_ON:
+            raise ValueError(f"sort_on must be one of {', '.join(SORT_ON)}, got {sort_on!r}")
+        if sort_on == "gpu" and ctx.version_code < 430:
+            raise ValueError(f"sort_on='gpu' needs OpenGL 4.3 compute shaders; this context is {ctx.version_code}")
+        self.sort_on = sort_on
+        self._gpu_sorts: dict[int, tuple[int, object]] = {}  # slot -> (geometry version, BitonicDepthSort)
         if quads == "auto":
             quads = "geometry" if is_software_gl(ctx) else "instanced"
         self.quads = quads
         self.ctx = ctx
         self.accum_dtype = accum_dtype
+        self.dither = (accum_dtype == "f1") if dither is None else bool(dither)
         self.sort_precision = sort_precision
         self.sort_tolerance_deg = float(sort_tolerance_deg)
         self._sorter = BackgroundSorter() if background_sort else None
@@ -102,6 +118,7 @@ class SplatRenderer:
         self._vaos: dict[tuple[int, str], tuple[moderngl.Buffer, moderngl.VertexArray]] = {}
         self._accum = None
         self._accum_fbo = None
+        self._accum_targets: dict[tuple[int, int], tuple[moderngl.Texture, moderngl.Framebuffer]] = {}
         self._photo = ctx.texture((1, 1), 3, np.zeros(3, np.float32).tobytes(), dtype="f4")
         self._line_vbo = None
         self._line_vao = None
@@ -123,7 +140,13 @@ class SplatRenderer:
         """Per-Gaussian uint8 flags for ``slot``: bit 0 selected (tinted), bit 1 hidden; None clears them."""
         self._model(slot).set_flags(flags)
 
+    def flagged(self, slot: int = 0) -> bool:
+        """Whether any Gaussian of ``slot`` is selected or hidden (what a display path without flags cannot show)."""
+        return slot in self._slots and self._slots[slot].flagged
+
     def remove(self, slot: int) -> None:
+        if slot in self._gpu_sorts:
+            self._gpu_sorts.pop(slot)[1].release()
         if slot in self._slots:
             self._slots.pop(slot).release()
             for key in [k for k in self._vaos if k[0] == slot]:
@@ -154,6 +177,8 @@ class SplatRenderer:
     def _ensure_order(self, slot: int, forward: np.ndarray) -> tuple[bool, float, float]:
         """Re-sort ``slot`` if the view turned past the tolerance. Returns (sorted, sort seconds, upload s)."""
         model = self._model(slot)
+        if self.sort_on == "gpu":
+            return self._gpu_order(slot, model, forward)
         if self._sorter is not None:
             done = self._sorter.take(slot)
             if done is not None and done[2] == model.version_geometry:
@@ -171,14 +196,38 @@ class SplatRenderer:
         model.write_order(order, forward)
         return True, t1 - t0, time.perf_counter() - t1
 
+    def _gpu_order(self, slot: int, model: GPUSplats, forward: np.ndarray) -> tuple[bool, float, float]:
+        if not turned(model.order_forward, forward, self.sort_tolerance_deg):
+            return False, 0.0, 0.0
+        from renderer_gl.gpu_sort import BitonicDepthSort
+
+        have = self._gpu_sorts.get(slot)
+        if have is None or have[0] != model.version_geometry:
+            if have is not None:
+                have[1].release()
+            have = (model.version_geometry, BitonicDepthSort(self.ctx, model.means))
+            self._gpu_sorts[slot] = have
+        t0 = time.perf_counter()
+        have[1].sort(forward)
+        model.use_order_buffer(have[1].order, forward, have[1].read)
+        return True, time.perf_counter() - t0, 0.0  # (the GPU's sort time shows in the frame's, at its finish)
+
     # ------------------------------------------------------------------------------------------------ drawing
     def _accum_target(self, size: tuple[int, int]) -> moderngl.Framebuffer:
+        # The two latest sizes are kept: the viewer alternates between its moving (half) and still (full) size,
+        # and re-creating a 1080p RGBA32F target (33 MB) at every switch costs an allocation each time.
         if self._accum is None or self._accum.size != size:
-            if self._accum is not None:
-                self._accum_fbo.release()
-                self._accum.release()
-            self._accum = self.ctx.texture(size, 4, dtype=self.accum_dtype)
-            self._accum_fbo = self.ctx.framebuffer(color_attachments=[self._accum])
+            cached = self._accum_targets.pop(size, None)
+            if cached is None:
+                tex = self.ctx.texture(size, 4, dtype=self.accum_dtype)
+                cached = (tex, self.ctx.framebuffer(color_attachments=[tex]))
+            self._accum_targets[size] = cached
+            while len(self._accum_targets) > 2:
+                old_size = next(iter(self._accum_targets))
+                tex, fbo = self._accum_targets.pop(old_size)
+                fbo.release()
+                tex.release()
+            self._accum, self._accum_fbo = cached
         return self._accum_fbo
 
     def _vao(self, slot: int, kind: str, index: moderngl.Buffer | None = None) -> moderngl.VertexArray:
@@ -216,6 +265,7 @@ class SplatRenderer:
         _set(prog, "u_far", params["far"])
         _set(prog, "u_eps2d", params["eps2d"])
         _set(prog, "u_tint", params["tint"])
+        _set(prog, "u_dither", 1.0 / 255.0 if self.dither and self.accum_dtype == "f1" else 0.0)
         if mode == "points":
             _set(prog, "u_point_size", params["point_size"])
             self.ctx.enable(moderngl.PROGRAM_POINT_SIZE)
@@ -394,11 +444,15 @@ class SplatRenderer:
         return np.ascontiguousarray(arr[::-1])
 
     def release(self) -> None:
-        for s in list(self._slots):
+        for s in list(self._slots) + list(self._gpu_sorts):
             self.remove(s)
         if self._sorter is not None:
             self._sorter.close()
-        for obj in (self._accum_fbo, self._accum, self._photo, self._line_vao, self._line_vbo, self._fullscreen,
+        for tex, fbo in self._accum_targets.values():
+            fbo.release()
+            tex.release()
+        self._accum_targets.clear()
+        for obj in (self._photo, self._line_vao, self._line_vbo, self._fullscreen,
                     self._corners, self._splat_prog, self._point_prog, self._resolve_prog, self._line_prog):
             if obj is not None:
                 obj.release()

@@ -87,6 +87,8 @@ class GPUSplats:
         self.max_rows = max_size
         self.version = 0
         self._geom = self._sh = self._flags = self._index = self._lod_index = None
+        self._external_index = None  # an order buffer that lives elsewhere (the GPU sort's), or None
+        self._read_order = None
         self.upload(arrays)
 
     def _texture(self, old, rows: int, components: int, dtype: str, data: bytes):
@@ -124,6 +126,7 @@ class GPUSplats:
                 self._index.release()
             self._index = self.ctx.buffer(reserve=max(n, 1) * 4)
         self.order_forward = None  # the buffer's order is stale
+        self._external_index = self._read_order = None
         self.version_geometry = getattr(self, "version_geometry", 0) + 1
         self.version += 1
 
@@ -149,6 +152,7 @@ class GPUSplats:
         flags = np.asarray(flags, dtype=np.uint8).reshape(-1)
         if flags.shape[0] != self.n:
             raise ValueError(f"flags must have {self.n} entries, got {flags.shape[0]}")
+        self.flagged = bool(flags.any())
         data, rows = _pack(flags.reshape(-1, 1), self.width)
         self._flags = self._texture(self._flags, rows, 1, "u1", data)
         self.version += 1
@@ -157,11 +161,23 @@ class GPUSplats:
         self._index.write(np.ascontiguousarray(order, dtype=np.uint32).tobytes())
         self.order_forward = np.array(forward, dtype=np.float64)
         self.order = order
+        self._external_index = self._read_order = None
+        self._lod_key = None
+
+    def use_order_buffer(self, buffer: moderngl.Buffer, forward: np.ndarray, read_order) -> None:
+        """Draw in the order held by ``buffer`` (its first n uint32 entries), a GPU sort's result, without reading
+        it back; ``read_order()`` fetches it to the CPU only if the moving preview (``lod_buffer``) needs it."""
+        self._external_index = buffer
+        self._read_order = read_order
+        self.order_forward = np.array(forward, dtype=np.float64)
+        self.order = None
         self._lod_key = None
 
     def lod_buffer(self, fraction: float) -> tuple[moderngl.Buffer, int]:
         """An index buffer of the ``fraction`` most important Gaussians in the current back-to-front order, and
         its length (the moving camera's preview: software GL's cost is per splat)."""
+        if self.order is None and self._read_order is not None:
+            self.order = np.asarray(self._read_order(), dtype=np.uint32)
         key = (id(self.order), round(float(fraction), 3))
         if self._lod_key != key:
             k = max(1, int(round(self.n * fraction)))
@@ -179,7 +195,7 @@ class GPUSplats:
 
     @property
     def index_buffer(self) -> moderngl.Buffer:
-        return self._index
+        return self._external_index if self._external_index is not None else self._index
 
     def bind(self, program: moderngl.Program) -> None:
         self._geom.use(location=0)

@@ -242,7 +242,9 @@ def test_flags_hide_and_tint(renderer):
     cam, _, _ = camera(eye=(0, 0, -4))
     _wall(renderer, rgb=(1, 1, 1))
     n = renderer.count()
+    assert not renderer.flagged()
     renderer.set_flags(np.full(n, 2, np.uint8))
+    assert renderer.flagged() and not renderer.flagged(slot=1)
     assert renderer.render_arrays(cam, ("alpha",))["alpha"].max() == 0.0
     renderer.set_flags(np.full(n, 1, np.uint8))
     rgb = renderer.render_arrays(cam, ("rgb",), tint=(0.0, 0.0, 1.0, 1.0))["rgb"]

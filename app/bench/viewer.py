@@ -6,12 +6,17 @@ context (EGL unless ``--backend``), on ``app.bench.raster``'s scene (a fixed amo
 - ``frame_ms``: a frame with the camera still (no sort): splat pass into the float accumulation target, resolve
   into an RGBA8 framebuffer, ``glFinish``; ``frame_half_ms`` the same at half resolution (the viewer's size while
   the camera moves); ``frame_moving_ms`` at half resolution drawing the 35% most important Gaussians (the viewer's
-  moving-camera preview on software GL); ``frame_f1_ms`` with an 8-bit accumulation target; ``frame_instanced_ms`` (or
+  moving-camera preview on software GL); ``frame_f2_ms`` with a half-float accumulation target, ``frame_f1_ms`` with an
+  8-bit one (dithered, the default for f1), ``frame_f1_plain_ms`` 8-bit without dithering (these four frame
+  columns are timed round-robin, one renderer each); ``frame_instanced_ms`` (or
   ``frame_geometry_ms``) with the quad path that ``quads="auto"`` did not pick (``quads`` names the one it did);
 - ``sort_float_ms`` / ``sort_u16_ms``: numpy back-to-front order with exact float keys / 16-bit keys;
   ``upload_ms``: writing that order to the index buffer (with ``glFinish``); ``sort_upload_ms``: the renderer's
   default ("auto") sort plus upload, what a turning camera adds to a frame;
 - ``gpu_sort_ms``: the compute-shader bitonic sort (renderer_gl/gpu_sort.py), up to ``--gpu-sort-max`` Gaussians;
+- ``path_<path>[/<format>]_ms``: a turning-camera frame (sort included) through each display path this machine can
+  run (app/viewer/display_path.py: GL with the CPU sort, GL with the GPU sort, CUDA), timed by the viewer's own
+  chooser; ``display_path``: the one it picks; ``paths_skipped``: why the others were not timed;
 - ``cpu_fwd_ms``: ``rasterize(backend="cpu")`` forward without gradients, same scene and size;
   ``cpu_over_gl``: cpu_fwd_ms / frame_ms.
 
@@ -38,6 +43,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--gpu-sort-max", type=int, default=100_000,
                         help="measure the compute-shader sort up to this many Gaussians (slow on software GL)")
     parser.add_argument("--no-cpu", action="store_true", help="skip the CPU rasterizer comparison")
+    parser.add_argument("--no-paths", action="store_true",
+                        help="skip timing the viewer's display paths (turning-camera frames, as the viewer chooses)")
     parser.add_argument("--live", action="store_true",
                         help="instead: training steps/s with the viewer window open (camera still, camera moving) "
                              "against headless, and input-to-frame latency at 100k splats (app/bench/viewer_live.py)")
@@ -52,6 +59,40 @@ def _median_ms(fn, repeat: int) -> float:
         fn()
         times.append(time.perf_counter() - t0)
     return 1000.0 * statistics.median(times)
+
+
+def _interleaved_median_ms(fns: dict, repeat: int) -> dict[str, float]:
+    """Median milliseconds of each function, run in turn (one warm-up round first)."""
+    times = {k: [] for k in fns}
+    for rnd in range(max(1, repeat) + 1):
+        for key, fn in fns.items():
+            t0 = time.perf_counter()
+            fn()
+            if rnd > 0:
+                times[key].append(time.perf_counter() - t0)
+    return {k: 1000.0 * statistics.median(v) for k, v in times.items()}
+
+
+def _display_paths(ctx, scene, w: int, h: int, repeat: int) -> dict:
+    """Each display path's turning-camera frame (app/viewer/display_path.py: the viewer's own chooser and
+    timings), the one it picks, and why the others were not timed."""
+    import numpy as np
+
+    from app.viewer.camera_control import ViewerCamera
+    from app.viewer.display_path import choose_display_path
+    from training.core.messages import ModelSnapshot
+
+    means, quats, scales, opac, sh = (t.numpy() for t in scene[:5])
+    norm = quats / np.linalg.norm(quats, axis=1, keepdims=True)
+    snap = ModelSnapshot(1, 1, 0, means, scales, norm, opac, sh, 3)
+    # the bench camera (identity pose, f = 0.9 w), orbiting the middle of the scene's box
+    fov = float(np.degrees(2 * np.arctan(h / (2 * float(scene[6][1, 1])))))
+    cam = ViewerCamera(np.eye(3), np.zeros(3), 5.0, fov, up=np.array([0.0, -1.0, 0.0]))
+    choice = choose_display_path(ctx, snap, cam, (w, h), override="auto", frames=max(1, repeat), always_time=True)
+    out = {f"path_{label}_ms": ms for label, ms in choice.frame_ms.items()}
+    out["display_path"] = choice.label()
+    out["paths_skipped"] = "; ".join(f"{k}: {v}" for k, v in choice.skipped.items())
+    return out
 
 
 def run(args: argparse.Namespace) -> list[dict]:
@@ -90,14 +131,20 @@ def run(args: argparse.Namespace) -> list[dict]:
             renderer.render(cam, off.fbo, scale=scale, lod=lod)
             ctx.finish()
 
-        row["frame_ms"] = _median_ms(frame, args.repeat)
+        # The accumulation formats are timed round-robin, so that a change in the machine's load (a shared
+        # machine) falls on all of them alike rather than on whichever ran at that moment.
+        formats = {"frame_f2_ms": dict(accum_dtype="f2"), "frame_f1_ms": dict(accum_dtype="f1"),
+                   "frame_f1_plain_ms": dict(accum_dtype="f1", dither=False)}
+        others = {key: SplatRenderer(ctx, sort_tolerance_deg=1e9, **options) for key, options in formats.items()}
+        for rf in others.values():
+            rf.set_splats(means, scales, quats, opac, sh, 3)
+        row.update(_interleaved_median_ms({"frame_ms": frame, **{k: (lambda rf=rf: frame(1.0, rf))
+                                                                  for k, rf in others.items()}}, args.repeat))
+        for rf in others.values():
+            rf.release()
         row["frame_half_ms"] = _median_ms(lambda: frame(0.5), args.repeat)
         # the viewer's moving-camera frame on software GL: half resolution, the 35% most important Gaussians
         row["frame_moving_ms"] = _median_ms(lambda: frame(0.5, lod=0.35), args.repeat)
-        r8 = SplatRenderer(ctx, accum_dtype="f1", sort_tolerance_deg=1e9)
-        r8.set_splats(means, scales, quats, opac, sh, 3)
-        row["frame_f1_ms"] = _median_ms(lambda: frame(1.0, r8), args.repeat)
-        r8.release()
         other = "instanced" if r.quads == "geometry" else "geometry"
         ro = SplatRenderer(ctx, sort_tolerance_deg=1e9, quads=other)
         ro.set_splats(means, scales, quats, opac, sh, 3)
@@ -133,6 +180,8 @@ def run(args: argparse.Namespace) -> list[dict]:
             row["gpu_sort_ms"] = _median_ms(gpu_sort, args.repeat)
             gs.release()
         r.release()
+        if not args.no_paths:
+            row.update(_display_paths(ctx, scene, w, h, args.repeat))
         if not args.no_cpu:
             import torch
 

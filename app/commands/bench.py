@@ -18,6 +18,7 @@ BENCHES: dict[str, tuple[str, str]] = {
     "ccft": ("app.bench.ccft", "CCFT loss time and peak memory for n, m in {1k, 4k, 16k} against dense POT"),
     "stylize": ("app.bench.stylize", "stylization iterations/s with a per-stage breakdown (rasterize, VGG, top-K, Sinkhorn, backward)"),
     "viewer": ("app.bench.viewer", "renderer_gl frame, sort and upload times at 10k-1M splats vs the CPU rasterizer's forward pass"),
+    "gpu": ("app.bench.gpu", "on an NVIDIA GPU: cuda parity tests, raster and viewer benches, reconstruct and stylize (paper presets); writes OUT/bench_gpu.json and .md"),
 }
 
 

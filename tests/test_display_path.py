@@ -1,0 +1,226 @@
+"""The CUDA display path (app/viewer/display_cuda.py) through the same code on the torch backend on CPU, against
+the GL renderer's picture for the same viewer camera; and the display-path chooser's decisions."""
+
+from __future__ import annotations
+
+from dataclasses import replace
+
+import numpy as np
+import pytest
+
+from app.viewer.camera_control import ViewerCamera
+from app.viewer.display_cuda import CudaDisplay, unsupported
+from app.viewer.display_path import (Candidate, choose_display_path, cuda_candidate, default_candidates,
+                                     gl_candidate, pick)
+from renderer_gl import Offscreen, SplatRenderer, create_context
+from tests.gl_scenes import psnr
+from training.core.messages import ModelSnapshot
+
+BG = (0.2, 0.3, 0.4)
+
+
+@pytest.fixture(scope="module")
+def ctx():
+    context = create_context("egl")
+    yield context
+    context.release()
+
+
+def snapshot(seed=3, n=400, version=1, geometry_version=1, sh_degree=2) -> ModelSnapshot:
+    """Overlapping random Gaussians around the origin, as a trainer's snapshot holds them."""
+    rng = np.random.default_rng(seed)
+    means = (rng.uniform(-1, 1, (n, 3)) * [1.3, 1.0, 0.8]).astype(np.float32)
+    scales = np.exp(rng.normal(-2.8, 0.5, (n, 3))).astype(np.float32)
+    quats = rng.normal(size=(n, 4)).astype(np.float32)
+    quats /= np.linalg.norm(quats, axis=1, keepdims=True)
+    opac = rng.uniform(0.05, 0.95, n).astype(np.float32)
+    sh = (rng.normal(size=(n, (sh_degree + 1) ** 2, 3)) * 0.3).astype(np.float32)
+    return ModelSnapshot(version, geometry_version, 0, means, scales, quats, opac, sh, sh_degree)
+
+
+def viewer_camera() -> ViewerCamera:
+    return ViewerCamera.looking_at((0.4, -0.3, -4.0), (0.0, 0.0, 0.0), up=(0.0, -1.0, 0.0), fov_y_degrees=40.0)
+
+
+def gl_picture(ctx, snap, cam, size, **render_kw) -> np.ndarray:
+    r = SplatRenderer(ctx)
+    r.set_splats(snap.means, snap.scales, snap.quats, snap.opacities, snap.sh, snap.sh_degree)
+    off = Offscreen(ctx, *size)
+    r.render(cam.camera(*size), off.fbo, background=BG, **render_kw)
+    img = off.read()
+    off.release()
+    r.release()
+    return img
+
+
+@pytest.mark.parametrize("backend", ["torch", "cpu"])
+def test_cuda_path_on_cpu_backends_draws_what_the_gl_renderer_draws(ctx, backend):
+    """The CUDA display path's code (camera, upload, texture, quad) on CPU tensors; "cuda" differs only in the
+    rasterizer and in the copy through pinned memory."""
+    snap = snapshot()
+    cam = viewer_camera()
+    size = (128, 96)
+    d = CudaDisplay(ctx, backend=backend)
+    assert d.set_model(snap)
+    off = Offscreen(ctx, *size)
+    d.draw(cam, off.fbo, background=BG)
+    mine = off.read()
+    ref = gl_picture(ctx, snap, cam, size)
+    assert ref.std() > 10  # the camera sees the model
+    assert psnr(mine / 255.0, ref / 255.0) >= 50.0  # 60 dB measured: both round to 8 bits once
+    # the texture's rows are the image's, bottom first, and the quad puts them back: the top-left object is there
+    np.testing.assert_array_equal(mine, d.render_image(cam.camera(*size), BG))
+    # alpha mode: grey levels of accumulated opacity, as the GL renderer's alpha mode
+    d.draw(cam, off.fbo, background=BG, mode="alpha")
+    assert psnr(off.read() / 255.0, gl_picture(ctx, snap, cam, size, mode="alpha") / 255.0) >= 40.0
+    off.release()
+    d.release()
+
+
+def test_cuda_path_draws_a_lower_scale_upsampled_into_the_viewport(ctx):
+    snap = snapshot(seed=8)
+    cam = viewer_camera()
+    d = CudaDisplay(ctx, backend="torch")
+    d.set_model(snap)
+    off = Offscreen(ctx, 128, 96)
+    d.draw(cam, off.fbo, background=BG)
+    full = off.read() / 255.0
+    off.fbo.clear(1.0, 0.0, 1.0, 1.0)
+    d.draw(cam, off.fbo, background=BG, scale=0.5)
+    half = off.read() / 255.0
+    assert d._texture.size == (64, 48)
+    assert 20.0 < psnr(full, half) < 60.0  # the same picture, softer; every pixel drawn (no magenta left)
+    assert not ((half[..., 0] == 1.0) & (half[..., 1] == 0.0) & (half[..., 2] == 1.0)).any()
+    off.release()
+    d.release()
+
+
+def test_model_stays_on_the_device_until_a_new_version(ctx):
+    d = CudaDisplay(ctx, backend="torch")
+    snap = snapshot(version=1, geometry_version=1)
+    assert d.set_model(snap)
+    means = d._tensors[0]
+    assert not d.set_model(snap)  # same version: nothing uploaded
+    recoloured = replace(snap, version=2, sh=snap.sh[:, :, ::-1].copy())
+    assert d.set_model(recoloured)
+    assert d._tensors[0] is means  # colours alone
+    np.testing.assert_array_equal(d._tensors[4].numpy(), recoloured.sh)
+    moved = replace(snap, version=3, geometry_version=2, means=snap.means + 1.0)
+    assert d.set_model(moved)
+    assert d._tensors[0] is not means and d.uploads == 3
+    d.release()
+
+
+def test_empty_display_draws_the_background(ctx):
+    d = CudaDisplay(ctx, backend="torch")
+    off = Offscreen(ctx, 32, 24)
+    d.draw(viewer_camera(), off.fbo, background=(0.5, 0.5, 0.5))
+    assert (off.read() == 128).all()
+    off.release()
+    d.release()
+
+
+def test_modes_it_cannot_draw_are_reported(ctx):
+    assert unsupported("color") is None and unsupported("alpha", photo="off") is None
+    for mode in ("points", "ellipsoids", "depth"):
+        assert mode in unsupported(mode)
+    assert "split" in unsupported("color", split=True)
+    assert "photo" in unsupported("color", photo="blend")
+    assert "selected" in unsupported("color", flags=True)
+    d = CudaDisplay(ctx, backend="torch")
+    d.set_model(snapshot())
+    with pytest.raises(ValueError, match="points"):
+        d.render_image(viewer_camera().camera(8, 6), BG, mode="points")
+    d.release()
+
+
+def test_cuda_backend_without_cuda_says_why(ctx):
+    import torch
+
+    if torch.cuda.is_available():
+        pytest.skip("this machine has CUDA")
+    with pytest.raises(RuntimeError, match="CUDA device"):
+        CudaDisplay(ctx, backend="cuda")
+
+
+def test_chooser_picks_gl_on_a_machine_without_cuda(ctx):
+    import torch
+
+    if torch.cuda.is_available():
+        pytest.skip("this machine has CUDA")
+    snap = snapshot()
+    choice = choose_display_path(ctx, snap, viewer_camera(), (64, 48), frames=2)
+    assert choice.path.startswith("gl-")
+    assert "cuda" in choice.skipped and "CUDA" in choice.skipped["cuda"]
+    if "llvmpipe" in ctx.info["GL_RENDERER"]:
+        # software GL: one candidate (numpy sort, f4), returned without spending frames on timing it
+        assert choice.label() == "gl-cpu-sort/f4" and choice.frame_ms == {}
+        assert "software GL" in choice.skipped["gl-gpu-sort"]
+        timed = choose_display_path(ctx, snap, viewer_camera(), (64, 48), frames=2, always_time=True)
+        assert timed.label() == "gl-cpu-sort/f4" and set(timed.frame_ms) == {"gl-cpu-sort/f4"}
+    else:
+        assert choice.frame_ms[choice.label()] <= 1.05 * min(choice.frame_ms.values())
+    assert choice.renderer_options()["accum_dtype"] in ("f4", "f2")
+
+
+def test_chooser_times_every_candidate_and_skips_one_that_raises(ctx):
+    snap = snapshot()
+
+    def broken():
+        raise RuntimeError("driver said no\nsecond line")
+
+    released = []
+
+    def fails_later():
+        calls = []
+
+        def frame(camera):
+            calls.append(camera)
+            if len(calls) == 2:
+                raise MemoryError("out of device memory")
+
+        return frame, lambda: released.append(True)
+
+    candidates = [gl_candidate(ctx, snap, "gl-cpu-sort", "f4"), cuda_candidate(ctx, snap, backend="torch"),
+                  Candidate("gl-gpu-sort", "f2", broken), Candidate("gl-gpu-sort", "f4", fails_later)]
+    choice = choose_display_path(ctx, snap, viewer_camera(), (64, 48), frames=2, candidates=candidates)
+    assert set(choice.frame_ms) == {"gl-cpu-sort/f4", "cuda"}
+    assert choice.skipped["gl-gpu-sort/f2"] == "RuntimeError: driver said no"
+    assert choice.skipped["gl-gpu-sort/f4"] == "MemoryError: out of device memory" and released == [True]
+    fastest = min(choice.frame_ms, key=choice.frame_ms.get)
+    first_close = next(c.label for c in candidates if c.label in choice.frame_ms
+                       and choice.frame_ms[c.label] <= 1.05 * choice.frame_ms[fastest])
+    assert choice.label() == first_close
+    assert all(t > 0 for t in choice.frame_ms.values())
+
+
+def test_an_override_wins_and_one_that_cannot_run_is_measured_instead(ctx, monkeypatch):
+    snap = snapshot()
+    calls = []
+
+    def counting():
+        calls.append(1)
+        raise AssertionError("an override must not time anything")
+
+    cands = [Candidate("gl-cpu-sort", "f4", counting), Candidate("cuda", None, counting)]
+    choice = choose_display_path(ctx, snap, viewer_camera(), (64, 48), override="cuda", candidates=cands)
+    assert (choice.path, choice.accum_dtype, calls) == ("cuda", None, [])
+    monkeypatch.setenv("SPLATSTYLER_DISPLAY_PATH", "gl-gpu-sort/f2")
+    choice = choose_display_path(ctx, snap, viewer_camera(), (64, 48), candidates=cands)
+    assert choice.renderer_options() == {"sort_on": "gpu", "accum_dtype": "f2"} and "setting" in choice.reason
+    with pytest.raises(ValueError, match="display path"):
+        choose_display_path(ctx, snap, viewer_camera(), (64, 48), override="vulkan", candidates=cands)
+    # the real candidates on this machine: a path it cannot run is not forced on it
+    real, skipped = default_candidates(ctx, snap)
+    if "cuda" in skipped:
+        choice = choose_display_path(ctx, snap, viewer_camera(), (64, 48), override="cuda", frames=1,
+                                     candidates=real, skipped=skipped)
+        assert choice.path.startswith("gl-") and "cannot run here" in choice.reason
+
+
+def test_a_later_candidate_must_be_clearly_faster_to_be_chosen():
+    cands = [Candidate("gl-cpu-sort", "f4", None), Candidate("gl-cpu-sort", "f2", None), Candidate("cuda", None, None)]
+    assert pick(cands, {"gl-cpu-sort/f4": 10.4, "gl-cpu-sort/f2": 10.0, "cuda": 10.2}).label == "gl-cpu-sort/f4"
+    assert pick(cands, {"gl-cpu-sort/f4": 11.0, "gl-cpu-sort/f2": 10.0, "cuda": 10.4}).label == "gl-cpu-sort/f2"
+    assert pick(cands, {"gl-cpu-sort/f4": 48.0, "gl-cpu-sort/f2": 12.0, "cuda": 3.0}).label == "cuda"
+    assert pick(cands, {"gl-cpu-sort/f2": 12.0, "cuda": 3.0}).label == "cuda"  # f4 failed: not timed
