@@ -140,6 +140,10 @@ class SplatRenderer:
         """Per-Gaussian uint8 flags for ``slot``: bit 0 selected (tinted), bit 1 hidden; None clears them."""
         self._model(slot).set_flags(flags)
 
+    def options(self) -> dict:
+        """The construction options a display path chooses (sort_on, accum_dtype)."""
+        return {"sort_on": self.sort_on, "accum_dtype": self.accum_dtype}
+
     def flagged(self, slot: int = 0) -> bool:
         """Whether any Gaussian of ``slot`` is selected or hidden (what a display path without flags cannot show)."""
         return slot in self._slots and self._slots[slot].flagged

@@ -42,6 +42,22 @@ def _path_row(app, label: str, attr: str, action, filters: list[str]) -> None:
             app.guarded(f"open {label}", action, path)
 
 
+DISPLAY_CHOICES = ("auto", "gl-cpu-sort", "gl-cpu-sort/f2", "gl-gpu-sort", "gl-gpu-sort/f2", "cuda")
+
+
+def display_path_row(app) -> None:
+    """How the view draws: the path chosen by timing on this machine (or set here), and why."""
+    view = app.view
+    current = view.display_override if view.display_override in DISPLAY_CHOICES else "auto"
+    changed, i = imgui.combo("display path", DISPLAY_CHOICES.index(current), list(DISPLAY_CHOICES))
+    if changed:
+        view.set_display_override(DISPLAY_CHOICES[i])
+    choice = view.display
+    if choice is not None:
+        imgui.text_disabled(f"drawing with {choice.label()}")
+        imgui.set_item_tooltip("\n".join([choice.reason] + [f"{k}: {v}" for k, v in choice.skipped.items()]))
+
+
 def scene_panel(app) -> None:
     imgui.separator_text("Files")
     _path_row(app, "model", "model", app.open_model, ["Gaussians", "*.ply *.splat"])
@@ -63,6 +79,7 @@ def scene_panel(app) -> None:
     if changed:
         s.mode = MODES[mode]
         app.view.dirty = True
+    display_path_row(app)
     changed, bg = imgui.color_edit3("background", list(s.background))
     if changed:
         s.background = tuple(bg)

@@ -67,6 +67,10 @@ class View3D:
         self.flying = False  # a fly or roll key is held
         self._budget = BURST_S  # seconds of drawing the view may still spend now (a token bucket)
         self._budget_at = time.perf_counter()
+        self._models: dict[int, object] = {}  # slot -> the ModelSnapshot uploaded there
+        self.display = None  # display_path.DisplayChoice, made at the first draw of a model
+        self.display_override = "auto"  # auto | a path from display_path.PATHS (or PATH/FORMAT)
+        self.cuda = None  # display_cuda.CudaDisplay when the chosen path is cuda
 
     # ------------------------------------------------------------------ models
     def show(self, snap, slot: int = 0) -> bool:
@@ -82,8 +86,44 @@ class View3D:
             self.renderer.set_splats(snap.means, snap.scales, snap.quats, snap.opacities, snap.sh, snap.sh_degree,
                                      slot=slot)
         self._uploaded[slot] = key
+        self._models[slot] = snap
+        if slot == 0 and self.cuda is not None:
+            self.cuda.set_model(snap)
         self.dirty = True
         return True
+
+    # ------------------------------------------------------------------ display path
+    def choose_display(self, size: tuple[int, int]) -> None:
+        """Time the ways this machine can draw the loaded model and keep the fastest (display_path.py); on software
+        GL there is one way and nothing is timed. A renderer with other options replaces the current one."""
+        from app.viewer.display_path import choose_display_path
+        from renderer_gl import SplatRenderer
+
+        choice = choose_display_path(self.ctx, self._models[0], self.camera, size, override=self.display_override)
+        self.release_cuda()
+        if choice.path == "cuda":
+            from app.viewer.display_cuda import CudaDisplay
+
+            self.cuda = CudaDisplay(self.ctx)
+            self.cuda.set_model(self._models[0])
+        elif choice.renderer_options() != self.renderer.options():
+            self.renderer.release()
+            self.renderer = SplatRenderer(self.ctx, background_sort=True, **choice.renderer_options())
+            models, self._uploaded = dict(self._models), {}
+            for slot, snap in models.items():
+                self.show(snap, slot)
+        self.display = choice
+        self.dirty = True
+
+    def set_display_override(self, value: str) -> None:
+        """The display path setting: "auto" measures again; a path name uses that path (if it can run here)."""
+        self.display_override = value
+        self.display = None  # chosen again at the next draw
+
+    def release_cuda(self) -> None:
+        if self.cuda is not None:
+            self.cuda.release()
+            self.cuda = None
 
     def clear(self, slot: int) -> None:
         self.renderer.remove(slot)
@@ -197,13 +237,19 @@ class View3D:
             fbo.use()
             fbo.clear(*s.background, 1.0)
             if self.has_model(0):
+                if self.display is None:
+                    self.choose_display(size)
                 cam = self.camera.camera(*size)
                 split = s.split_position if (s.split and split_ready) else None
                 photo = None if s.photo == "off" else s.photo
-                self.renderer.render(cam, fbo, mode=s.mode, background=s.background, split=split,
-                                     max_sh_degree=s.max_sh_degree, scale=scale, photo=photo,
-                                     photo_alpha=s.photo_alpha, overlays=self.overlays, lod=lod,
-                                     split_left=1)  # slot 1 holds the model before stylization: before | after
+                if self.cuda is not None and self.cuda_can_draw(split, photo):
+                    self.cuda.draw(self.camera, fbo, background=s.background, max_sh_degree=s.max_sh_degree,
+                                   mode=s.mode, scale=scale, overlays=self.overlays, lines_renderer=self.renderer)
+                else:  # the GL path, also for what the CUDA path cannot draw (points, ellipsoids, split, tint)
+                    self.renderer.render(cam, fbo, mode=s.mode, background=s.background, split=split,
+                                         max_sh_degree=s.max_sh_degree, scale=scale, photo=photo,
+                                         photo_alpha=s.photo_alpha, overlays=self.overlays, lod=lod,
+                                         split_left=1)  # slot 1: the model before stylization, before | after
             gl_direct.finish(self.ctx)
         finally:
             found.use()
@@ -213,6 +259,12 @@ class View3D:
         self.frames_drawn += 1
         self.dirty = False
         return True
+
+    def cuda_can_draw(self, split, photo) -> bool:
+        from app.viewer.display_cuda import unsupported
+
+        return unsupported(self.settings.mode, split=split is not None, photo=photo,
+                           flags=self.renderer.flagged(0)) is None
 
     def may_draw_now(self) -> bool:
         """While a trainer runs the view may draw (1 - share) of the time on average: drawing time accrues at that
@@ -237,6 +289,7 @@ class View3D:
         return np.frombuffer(data, np.uint8).reshape(self._size[1], self._size[0], 3)[::-1].copy()
 
     def release(self) -> None:
+        self.release_cuda()
         self.renderer.release()
         for obj in (self._fbo, self._texture):
             if obj is not None:
