@@ -26,6 +26,7 @@ IMAGE_SUFFIXES = (".jpg", ".jpeg", ".png", ".exr", ".tif", ".tiff", ".webp", ".b
 MAX_FPS = 30.0  # while the user acts
 MAX_FPS_TRAINING = 12.0  # while the user acts beside a running trainer (each frame is CPU the trainer loses)
 ACTIVE_AFTER_INPUT_S = 0.5
+FRUSTUM_SIZE = 0.05  # the dataset cameras' frustums in the view, as a fraction of the cameras' span
 
 
 @dataclass
@@ -94,6 +95,7 @@ class ViewerApp(RunsMixin):
         self._platform = "null"
         self._active_at = 0.0
         self._frame_start = 0.0
+        self._frustums_hidden: frozenset[int] = frozenset()
 
     # ------------------------------------------------------------------ messages
     def say(self, line: str) -> None:
@@ -276,6 +278,7 @@ class ViewerApp(RunsMixin):
         if self.scene.cameras:
             self.view.camera = ViewerCamera.from_dataset(self.scene.cameras)
             self.view.moved()
+            self.update_overlays()
         elif self.static_model is not None:
             self._frame_model(self.static_model)
 
@@ -301,6 +304,7 @@ class ViewerApp(RunsMixin):
     def snap_to_camera(self, index: int) -> None:
         if 0 <= index < len(self.scene.cameras):
             self.view.snap_to(self.scene.cameras[index], self.scene.cameras)
+            self.update_overlays()
             if self.view.settings.photo != "off":
                 self.set_photo(index)
 
@@ -340,6 +344,9 @@ class ViewerApp(RunsMixin):
                 elif item.kind == "warning":
                     self.say(f"warning: {item.message}")
         self._finish_pending()
+        if self.scene.cameras and self.view.settings.show_frustums and \
+                self._cameras_at_view() != self._frustums_hidden:
+            self.update_overlays()  # the view came near cameras, or left them
         now = time.perf_counter()
         editing_live = self.edit.live
         if editing_live and (not self.session.running or self.editor is None):
@@ -398,6 +405,16 @@ class ViewerApp(RunsMixin):
         trainer = self.session.trainer
         return trainer.snapshot() if trainer is not None else self.static_model
 
+    def _cameras_at_view(self) -> frozenset[int]:
+        """The dataset cameras within two frustum sizes of the view's eye: their frustums would be lines from
+        around the eye across the whole picture, so they are not drawn while the view stands there."""
+        cams = self.scene.cameras
+        if not cams or self.view is None or self.view.camera is None:
+            return frozenset()
+        centres = np.array([c.center for c in cams])
+        d = np.linalg.norm(centres - self.view.camera.position, axis=1)
+        return frozenset(np.nonzero(d <= 2 * FRUSTUM_SIZE * _span(centres))[0].tolist())
+
     def update_overlays(self) -> None:
         """Frustums of the dataset cameras and the stylization's path through them, in the 3D view."""
         if self.view is None:
@@ -407,11 +424,14 @@ class ViewerApp(RunsMixin):
         parts = []
         cams = self.scene.cameras
         if cams:
-            size = 0.05 * _span([c.center for c in cams])
+            size = FRUSTUM_SIZE * _span([c.center for c in cams])
             if self.view.settings.show_frustums:
                 current = self.current_view_index()
-                colors = [(1.0, 0.25, 0.2, 1.0) if i == current else (0.95, 0.8, 0.2, 0.8) for i in range(len(cams))]
-                parts.append(frustums(cams, size, colors))
+                self._frustums_hidden = self._cameras_at_view()
+                shown = [i for i in range(len(cams)) if i not in self._frustums_hidden]
+                colors = [(1.0, 0.25, 0.2, 1.0) if i == current else (0.95, 0.8, 0.2, 0.8) for i in shown]
+                if shown:
+                    parts.append(frustums([cams[i] for i in shown], size, colors))
             if self.view.settings.show_path:
                 order = [item[0] for item in self.trajectory() if not item[2]]
                 if len(order) > 1:
