@@ -494,7 +494,7 @@ class ViewerApp(RunsMixin):
         self.capacity_texture = self.style_texture = None
 
     def gui(self) -> None:
-        """Hello ImGui's show_gui: everything of a frame but the docked panels and the view, which it draws itself."""
+        """Everything of a frame but the docked panels and the view (Hello ImGui draws those after this)."""
         from imgui_bundle import imgui
 
         from app.viewer import panels
@@ -616,7 +616,9 @@ class ViewerApp(RunsMixin):
         rp.callbacks.after_swap = self.pace
         rp.callbacks.post_init = self.post_init
         rp.callbacks.before_exit = self.before_exit
-        rp.callbacks.show_gui = self.gui
+        # right after imgui's new frame, before the docked panels and the view: the frame's news, shortcuts and
+        # moves reach the view in the frame that draws it
+        rp.callbacks.post_new_frame = self.gui
         configure(rp, self)
         return rp
 

@@ -60,6 +60,7 @@ class View3D:
         self.dirty = True
         self._last_move = 0.0
         self._full_res_pending = False
+        self._moved_since_draw = False  # a move waits for its picture: drawn at the moving quality, however late
         self._uploaded: dict[int, tuple[int, int]] = {}  # slot -> (version, geometry_version)
         self.overlays = None  # renderer_gl Lines, or None
         self.frames_drawn = 0
@@ -136,6 +137,7 @@ class View3D:
     # ------------------------------------------------------------------ camera input
     def moved(self) -> None:
         self._last_move = time.perf_counter()
+        self._moved_since_draw = True
         self._full_res_pending = True
         self.dirty = True
 
@@ -225,11 +227,15 @@ class View3D:
                 self._full_res_pending = False  # the moving picture is already at the still scale
             return False
         s = self.settings
-        moving = time.perf_counter() - self._last_move <= s.settle_s
+        moving = self._moved_since_draw or time.perf_counter() - self._last_move <= s.settle_s
         scale = s.motion_scale if moving else (s.training_scale if training else 1.0)
         lod = s.motion_lod if moving else 1.0
         if not moving:
             self._full_res_pending = False
+        self._moved_since_draw = False
+        # the last frame's GL work (the panels, the view's image) may still be under way on a software renderer:
+        # wait for it here with the GIL released, not inside the calls below, which hold it (and with it a trainer)
+        gl_direct.finish(self.ctx)
         t0 = time.perf_counter()
         # the caller (imgui's frame) has its own framebuffer bound: draw into ours, then give its binding back
         found = self.ctx.detect_framebuffer()

@@ -33,13 +33,7 @@ def _contents(app) -> None:
     app.window.view_rect = (int(origin.x), int(origin.y), width, height)  # window coordinates (logical pixels)
     size = (max(int(width * scale.x), 1), max(int(height * scale.y), 1))  # framebuffer pixels
     view = app.view
-    view.draw(size, split_ready=app.original is not None, training=app.training_now())
-    texture = view.texture
-    if texture is not None and texture.size == size:
-        # GL textures start at the bottom row: flip v so the picture stands upright
-        imgui.image(imgui.ImTextureRef(texture.glo), imgui.ImVec2(width, height), imgui.ImVec2(0, 1),
-                    imgui.ImVec2(1, 0))
-        imgui.set_cursor_screen_pos(origin)
+    # input first, then the picture: a move is drawn in the frame that received it
     buttons = (imgui.ButtonFlags_.mouse_button_left | imgui.ButtonFlags_.mouse_button_right
                | imgui.ButtonFlags_.mouse_button_middle)
     imgui.invisible_button("3d view canvas", imgui.ImVec2(width, height), buttons)
@@ -47,11 +41,17 @@ def _contents(app) -> None:
     app.window.view_hovered = hovered or active
     from app.viewer.edit_panel import handle_gesture
 
-    handle_gesture(app, hovered, active)
-    span = app.fly_span()
     view.handle_mouse(imgui, hovered, active, left_orbits=app.edit.tool == "orbit")
     if not app.editor_shortcut_held():
-        view.handle_keys(imgui, min(app.window.frame_dt, 0.1), fly_speed=0.5 * span,
+        view.handle_keys(imgui, min(app.window.frame_dt, 0.1), fly_speed=0.5 * app.fly_span(),
                          enabled=not io.want_text_input and (imgui.is_window_focused() or hovered))
     else:
         view.flying = False
+    view.draw(size, split_ready=app.original is not None, training=app.training_now())
+    texture = view.texture
+    draw_list = imgui.get_window_draw_list()
+    if texture is not None and texture.size == size:
+        # GL textures start at the bottom row: flip v so the picture stands upright
+        draw_list.add_image(imgui.ImTextureRef(texture.glo), origin,
+                            imgui.ImVec2(origin.x + width, origin.y + height), imgui.ImVec2(0, 1), imgui.ImVec2(1, 0))
+    handle_gesture(app, hovered, active)  # drawn over the picture
