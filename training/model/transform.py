@@ -121,5 +121,9 @@ def transform_gaussians(g: Gaussians, matrix) -> Gaussians:
             params["quats"] = back(q)
             if g.sh_degree > 0:
                 x = sh_rotation(r, g.sh_degree)
-                params["shN"] = back(np.einsum("ij,njc->nic", x, g.shN.detach().cpu().double().numpy()))
+                rest = g.shN.detach().cpu().double().numpy()  # (N, K, 3)
+                k = rest.shape[1]
+                # one (K, K) x (K, 3N) product: a single BLAS call instead of N small ones
+                turned = x @ rest.transpose(1, 0, 2).reshape(k, -1)
+                params["shN"] = back(turned.reshape(k, -1, 3).transpose(1, 0, 2))
     return Gaussians(**params, sh_degree=g.sh_degree)
