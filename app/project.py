@@ -29,7 +29,7 @@ Manifest, version 1 (only ``version`` and each model's ``path`` are required; ev
                  "strength": 1.0, "strength_regions": [{"region": "arrays/...", "strength": 0.5}]}],
      "dataset": {"path": ..., "abs_path": ...} | null, "painting": {...} | null,
      "stylize": {StylizeConfig fields},
-     "camera": {keyframe: world_to_camera, fx, fy, cx, cy, width, height} | null,
+     "camera": {keyframe: world_to_camera, fx, fy, cx, cy, width, height; target_distance} | null,
      "camera_path": {"duration": 8, "fps": 30, "loop": false, "keyframes": [...]},
      "layout": "imgui ini text",
      "up": [0, -1, 0], "world": [[4x4]]}   # the scene's up axis, and a similarity after every model's transform
@@ -109,6 +109,7 @@ class Project:
     painting: FileRef | None = None
     stylize: dict = field(default_factory=dict)  # StylizeConfig fields (stylize_config() builds one)
     camera: object = None  # app.camera_path.Keyframe or None
+    camera_distance: float = 1.0  # the viewer's orbit centre, this far in front of the camera
     path_keys: list = field(default_factory=list)  # app.camera_path.Keyframe
     path_duration: float = 8.0
     path_fps: float = 30.0
@@ -209,7 +210,8 @@ def save_project(path: str | Path, project: Project, embed: bool = False) -> Pat
         "format": FORMAT, "version": FORMAT_VERSION, "models": models,
         "dataset": ref(project.dataset, "dataset"), "painting": ref(project.painting, "painting"),
         "stylize": _jsonable(project.stylize),
-        "camera": None if project.camera is None else project.camera.to_dict(),
+        "camera": None if project.camera is None else {**project.camera.to_dict(),
+                                                       "target_distance": float(project.camera_distance)},
         "camera_path": {"duration": float(project.path_duration), "fps": float(project.path_fps),
                         "loop": bool(project.path_loop), "keyframes": [k.to_dict() for k in project.path_keys]},
         "layout": project.layout,
@@ -313,6 +315,7 @@ class _Reader:
         p.stylize = self.stylize(data.get("stylize", {}))
         if data.get("camera") is not None:
             p.camera = _keyframe(data["camera"], 0, self.path)
+            p.camera_distance = self.number(data["camera"], "target_distance", 1.0, "camera.", positive=True)
         path = data.get("camera_path", {})
         if not isinstance(path, dict):
             self.fail("'camera_path' must be an object")

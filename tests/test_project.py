@@ -51,8 +51,10 @@ def full_project(folder) -> Project:
     entry = ModelEntry(FileRef(folder / "stylized.ply"), "fox", FileRef(folder / "photo.ply"), kept,
                        rng.random(len(kept)) > 0.7, rng.random(len(kept)) > 0.9, transform, colour)
     return Project([entry], FileRef(folder / "data"), FileRef(folder / "painting.jpg"),
-                   {"loss": "nnfm", "tau": 0.5, "background": (1.0, 1.0, 1.0)}, key(0.0), [key(0.0), key(1.0)],
-                   6.0, 24.0, True, "[Window][Scene]\nPos=0,0\n", np.array([0.0, 0.0, 1.0]), np.diag([2.0, 2, 2, 1]))
+                   stylize={"loss": "nnfm", "tau": 0.5, "background": (1.0, 1.0, 1.0)}, camera=key(0.0),
+                   camera_distance=2.5, path_keys=[key(0.0), key(1.0)], path_duration=6.0, path_fps=24.0,
+                   path_loop=True, layout="[Window][Scene]\nPos=0,0\n", up=np.array([0.0, 0.0, 1.0]),
+                   world=np.diag([2.0, 2, 2, 1]))
 
 
 def assert_same(a: Project, b: Project) -> None:
@@ -69,6 +71,7 @@ def assert_same(a: Project, b: Project) -> None:
     assert [s for _, s in ma.colour.strength_regions] == [s for _, s in mb.colour.strength_regions]
     assert a.stylize == b.stylize and a.layout == b.layout
     assert np.array_equal(a.camera.world_to_camera, b.camera.world_to_camera) and a.camera.fy == b.camera.fy
+    assert a.camera_distance == b.camera_distance
     assert [k.to_dict() for k in a.path_keys] == [k.to_dict() for k in b.path_keys]
     assert (a.path_duration, a.path_fps, a.path_loop) == (b.path_duration, b.path_fps, b.path_loop)
     assert np.array_equal(a.up, b.up) and np.array_equal(a.world, b.world)

@@ -18,7 +18,6 @@ from training.model.gaussians import Gaussians
 from training.model.ply_io import read_ply, write_ply
 from training.model.rotation import quat_to_rotmat
 from training.model.sh import sh_basis
-from training.model.sh_constants import SH_C0
 from training.model.splat_io import read_splat
 from training.model.transform import transform_gaussians
 
