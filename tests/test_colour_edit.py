@@ -144,3 +144,14 @@ def test_apply_on_the_rows_an_editor_kept():
     shown = edits.apply(stylized[rows], original_sh=original[rows], rows=rows)
     whole = edits.apply(stylized, original_sh=original)
     assert torch.equal(shown, whole[rows])
+
+
+def test_bench_edits_reports_every_operation(capsys):
+    import json
+
+    from app.cli import main
+
+    assert main(["bench", "edits", "--sizes", "2000", "--repeat", "1", "--json"]) == 0
+    rows = [json.loads(line) for line in capsys.readouterr().out.splitlines()]
+    assert len(rows) == 6 and all(r["gaussians"] == 2000 and r["seconds"] > 0 and r["ratio"] > 0 for r in rows)
+    assert rows[-1]["operation"].startswith("open project") and rows[-1]["file_bytes"] > 0
