@@ -75,7 +75,10 @@ def bake_model(project: Project, entry: ModelEntry, drop_hidden: bool = False) -
     if rows is not None and len(rows) and rows.max() >= len(g):
         raise InputError(name, f"model '{entry.name}' keeps row {int(rows.max())}; it has {len(g)} Gaussians")
     if drop_hidden and entry.hidden is not None:
-        rows = (np.arange(len(g)) if rows is None else rows)[~entry.hidden]
+        rows = np.arange(len(g)) if rows is None else rows
+        if len(entry.hidden) != len(rows):
+            raise InputError(name, f"model '{entry.name}': {len(entry.hidden)} hidden flags for {len(rows)} rows")
+        rows = rows[~entry.hidden]
     if rows is not None and not (len(rows) == len(g) and np.array_equal(rows, np.arange(len(g)))):
         g = g.subset(torch.as_tensor(rows, dtype=torch.long))
     return transform_gaussians(g, np.asarray(project.world) @ np.asarray(entry.transform))

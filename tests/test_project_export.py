@@ -160,3 +160,26 @@ def test_a_project_whose_model_moved_or_changed_fails_in_one_line(tmp_path, caps
     assert code == 2 and not out.exists()
     assert len(err.strip().splitlines()) == 1 and str(tmp_path / "stylized.ply") in err
     assert ("not found" if damage == "moved" else "changed since the project was saved") in err
+
+
+def test_two_models_export_as_one_file_with_their_transforms(tmp_path, capsys):
+    photo, stylized = photo_and_stylized(tmp_path)
+    g = torch.Generator().manual_seed(5)
+    second = Gaussians(torch.randn(50, 3, generator=g), torch.randn(50, 3, generator=g) - 3,
+                       torch.randn(50, 4, generator=g), torch.randn(50, generator=g), torch.randn(50, 1, 3, generator=g),
+                       torch.randn(50, 3, 3, generator=g), 1)
+    write_ply(tmp_path / "second.ply", second)
+    second = read_ply(tmp_path / "second.ply")
+    move = similarity(0.5, (0.6, 0.0, 0.8, 0.0), (10.0, 0.0, 0.0))
+    p = Project([ModelEntry(FileRef(tmp_path / "photo.ply"), "a"),
+                 ModelEntry(FileRef(tmp_path / "second.ply"), "b", transform=move)])
+    path = save_project(tmp_path / "two.splatproj", p)
+    code, stdout, err = export(capsys, "export", "--project", path, "-o", tmp_path / "union.ply")
+    assert code == 0, err
+    assert f"{N + 50} Gaussians" in stdout
+    got = read_ply(tmp_path / "union.ply")
+    assert len(got) == N + 50 and got.sh_degree == 3
+    assert torch.equal(got.means[:N], photo.means) and torch.equal(got.shN[:N], photo.shN)
+    moved = transform_gaussians(second, move)
+    assert torch.equal(got.means[N:], moved.means) and torch.equal(got.shN[N:, :3], moved.shN)
+    assert not got.shN[N:, 3:].any()  # the degree-1 model's missing bands are zero
