@@ -161,8 +161,9 @@ def file_sha256(path: str | Path) -> str:
 # --------------------------------------------------------------------------------------------- saving
 def save_project(path: str | Path, project: Project, embed: bool = False) -> Path:
     """Write ``project`` to ``path`` (``.splatproj`` added when missing) atomically. Each model's hash is taken
-    from the file as it is now (the edits refer to those rows); ``embed`` copies the model files into the project
-    (models already embedded stay embedded). Returns the path written."""
+    from the file as it is now (the edits refer to those rows), except for a file opened as missing or changed,
+    which keeps its recorded hash (so it is still recognised, or still flagged); ``embed`` copies the model files
+    into the project (models already embedded stay embedded). Returns the path written."""
     path = Path(path)
     if path.suffix != SUFFIX:
         path = path.with_name(path.name + SUFFIX)
@@ -175,8 +176,8 @@ def save_project(path: str | Path, project: Project, embed: bool = False) -> Pat
             return None
         out = {"path": _relative(r.path, folder), "abs_path": str(Path(r.path).absolute())}
         if hash_it:
-            if r.embedded is not None and project.source is not None:
-                out["sha256"] = r.sha256
+            if (r.embedded is not None and project.source is not None) or r.changed:
+                out["sha256"] = r.sha256  # a changed file keeps the hash its edits were made on: still flagged
             elif Path(r.path).is_file():
                 out["sha256"] = file_sha256(r.path)
             elif r.sha256:

@@ -71,3 +71,25 @@ def test_an_embedded_model_opens_in_the_viewer_without_its_file(tmp_path):
     opened = apply_project(again, path)
     assert opened.problems == [] and np.array_equal(again.editor.model.sh, app.editor.model.sh)
     assert again.paths.model.startswith(str(tmp_path / "out2" / "project_models"))
+
+
+def test_models_the_viewer_does_not_show_are_saved_back_unchanged(tmp_path):
+    """A project with a model whose file changed and a second model: the viewer shows the one it can, says so for
+    the other, and saving the session keeps both (the changed one still flagged)."""
+    from app.project import FileRef, ModelEntry, Project, open_project
+
+    write_model(tmp_path / "a.ply")
+    write_model(tmp_path / "b.ply", n=80)
+    rows = np.arange(0, 150, 2)
+    path = save_project(tmp_path / "s.splatproj", Project([ModelEntry(FileRef(tmp_path / "a.ply"), "a", kept=rows),
+                                                           ModelEntry(FileRef(tmp_path / "b.ply"), "b")]))
+    write_model(tmp_path / "a.ply", n=120)  # a changed: its kept rows no longer fit
+    app = ViewerApp(Paths(out=str(tmp_path / "out")))
+    opened = apply_project(app, path)
+    assert len(opened.problems) == 2 and "changed since the project was saved" in opened.problems[0]
+    assert "'a' is in the project but not shown" in opened.problems[1]
+    assert app.paths.model == str(tmp_path / "b.ply") and len(app.editor.model) == 80
+    again = save_project(tmp_path / "t.splatproj", project_from_app(app, carry=opened.not_shown))
+    project, problems = open_project(again)
+    assert [m.name for m in project.models] == ["b", "a"] and project.models[1].file.changed
+    assert np.array_equal(project.models[1].kept, rows) and len(problems) == 1

@@ -27,6 +27,7 @@ class Opened:
     entry: ModelEntry | None = None  # the model shown: its transform, colour edits, original
     layout: str = ""  # imgui ini text: imgui.load_ini_settings_from_memory(layout) applies it
     project: Project | None = None
+    not_shown: list[ModelEntry] = field(default_factory=list)  # give back to project_from_app(carry=...)
 
 
 def keyframe_of(viewer_camera, width: int, height: int):
@@ -47,10 +48,12 @@ def viewer_camera_of(keyframe, up=None, target_distance: float = 1.0):
 
 
 def project_from_app(app, layout: str = "", transform=None, colour: ColourEdits | None = None,
-                     original: str | None = None, view_size: tuple[int, int] | None = None) -> Project:
+                     original: str | None = None, view_size: tuple[int, int] | None = None,
+                     carry: list[ModelEntry] = ()) -> Project:
     """The viewer's session as a Project: the opened model with the editor's kept rows, selection and hidden
     Gaussians, the dataset and painting, the stylization settings, the camera and its keyframes, and the layout
-    (``hello_imgui``/``imgui.save_ini_settings_to_memory()``)."""
+    (``imgui.save_ini_settings_to_memory()``). ``carry``: the models of an opened project the viewer did not show
+    (``Opened.not_shown``), written back unchanged so saving loses none of them."""
     models = []
     if app.editor is not None and app.paths.model and not app.edit.live:
         ed = app.editor
@@ -64,6 +67,7 @@ def project_from_app(app, layout: str = "", transform=None, colour: ColourEdits 
     if view is not None and view.camera is not None:
         w, h = view_size or (max(app.window.view_rect[2], 1), max(app.window.view_rect[3], 1))
         camera, distance, up = keyframe_of(view.camera, w, h), view.camera.target_distance, view.camera.up
+    models += list(carry)
     stylize = dataclasses.asdict(app.training.stylize) if app.training.stylize is not None else {}
     return Project(models=models, dataset=FileRef(Path(app.paths.data)) if app.paths.data else None,
                    painting=FileRef(Path(app.paths.style)) if app.paths.style else None, stylize=stylize,
@@ -83,6 +87,7 @@ def apply_project(app, path: str | Path) -> Opened:
     entry = next((m for m in project.models if m.usable), None)
     for m in project.models:
         if m is not entry:
+            opened.not_shown.append(m)
             opened.problems.append(f"{m.file.path}: model '{m.name}' is in the project but not shown (the viewer "
                                    f"shows one model{'' if m.usable else '; its file is missing or changed'})")
     if entry is not None:
