@@ -17,6 +17,7 @@ BENCHES: dict[str, tuple[str, str]] = {
     "raster": ("app.bench.raster", "rasterizer forward/backward time and peak memory per backend vs the torch reference"),
     "ccft": ("app.bench.ccft", "CCFT loss time and peak memory for n, m in {1k, 4k, 16k} against dense POT"),
     "stylize": ("app.bench.stylize", "stylization iterations/s with a per-stage breakdown (rasterize, VGG, top-K, Sinkhorn, backward)"),
+    "edits": ("app.bench.edits", "colour edits, style strength, transforms and project files at 100k-1M Gaussians vs a copy of the SH"),
     "viewer": ("app.bench.viewer", "renderer_gl frame, sort and upload times at 10k-1M splats vs the CPU rasterizer's forward pass"),
     "gpu": ("app.bench.gpu", "on an NVIDIA GPU: cuda parity tests, raster and viewer benches, reconstruct and stylize (paper presets); writes OUT/bench_gpu.json and .md"),
 }

@@ -6,6 +6,11 @@ IN is a 3DGS PLY (or a .splat file). OUT's name picks the format (``--format`` o
 ``*.splat`` (web viewers; colour from the SH DC term only). ``--sh-bands B`` keeps SH bands 0..B. A selection
 (``--mask FILE``, ``--box``, ``--sphere``, with ``--invert``) writes only those Gaussians. The size of the file is
 printed before it is written; ``--dry-run`` prints it and writes nothing.
+
+``--project P`` (instead of IN) bakes a project file (``*.splatproj``, app/project.py) with no display: its models'
+kept rows, transforms, the scene's up axis and scale, colour adjustments and style strength, merged into one
+model (app/project_bake.py); hidden Gaussians are written too unless ``--without-hidden``. A model file of the
+project that is missing or changed is one line naming it (exit 2).
 """
 
 from __future__ import annotations
@@ -22,7 +27,13 @@ def register(sub: argparse._SubParsersAction) -> None:
         help="write a model (or a selection) as PLY, compressed PLY or .splat, with a choice of SH bands",
         description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter,
     )
-    parser.add_argument("input", type=Path, metavar="IN", help="3DGS .ply (or .splat) file")
+    parser.add_argument("input", type=Path, metavar="IN", nargs="?", default=None,
+                        help="3DGS .ply (or .splat) file (or --project)")
+    parser.add_argument("--project", type=Path, default=None, metavar="P",
+                        help="bake this project file (.splatproj) instead: its edits, transforms, colour "
+                             "adjustments and style strength applied, its models merged")
+    parser.add_argument("--without-hidden", action="store_true",
+                        help="with --project: leave out the Gaussians hidden in the project")
     parser.add_argument("-o", "--output", type=Path, required=True, metavar="OUT",
                         help="output file: .ply, .compressed.ply or .splat (written atomically)")
     parser.add_argument("--format", choices=("ply", "compressed-ply", "splat"), default=None,
@@ -86,6 +97,24 @@ def selection_mask(args: argparse.Namespace, means):
     return ~mask if args.invert else mask
 
 
+def baked_project(path: Path, drop_hidden: bool):
+    """The project's models baked into one; its first model problem is the error, other problems warnings."""
+    import sys
+
+    from app.project import open_project
+    from app.project_bake import bake_project, model_problem
+    from training.core.errors import InputError
+
+    project, problems = open_project(path)
+    for entry in project.models:
+        problem = model_problem(entry)
+        if problem is not None:
+            raise InputError(None, problem)
+    for line in problems:
+        print(f"warning: {line}", file=sys.stderr)
+    return bake_project(project, drop_hidden)
+
+
 def run(args: argparse.Namespace) -> int:
     from training.core.errors import InputError
     from training.model.export import FORMAT_NAMES, export_size, format_for_path, human_size, write_export
@@ -97,12 +126,17 @@ def run(args: argparse.Namespace) -> int:
     if args.output.is_dir():
         raise InputError(args.output, "is a folder; give an output file name ending in .ply, .compressed.ply or "
                                       ".splat")
-    g = read_model(args.input)
+    if (args.input is None) == (args.project is None):
+        raise InputError(None, "give a model file IN or --project P (one of them)")
+    if args.without_hidden and args.project is None:
+        raise InputError(None, "--without-hidden applies to --project")
+    source = args.input if args.project is None else args.project
+    g = read_model(args.input) if args.project is None else baked_project(args.project, args.without_hidden)
     if args.sh_degree is not None:
         if fmt == "splat" and args.sh_degree > 0:
             raise InputError(None, "--sh-bands above 0 needs PLY output (.splat holds no SH beyond the colour)")
         if args.sh_degree > g.sh_degree:
-            raise InputError(args.input, f"holds SH degree {g.sh_degree}; --sh-bands {args.sh_degree} cannot "
+            raise InputError(source, f"holds SH degree {g.sh_degree}; --sh-bands {args.sh_degree} cannot "
                                          "add degrees")
     bands = min(g.sh_degree, 0 if fmt == "splat" else 3) if args.sh_degree is None else args.sh_degree
     mask = selection_mask(args, g.means.numpy())

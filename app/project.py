@@ -1,0 +1,478 @@
+"""Project files (``*.splatproj``): one file that restores an editing session, and reads it back, checked once.
+
+**Why a zip with a JSON manifest.** A project holds small structured settings (paths, the camera, stylization
+settings, colour parameters, the dock layout) and large per-Gaussian arrays (the kept rows, selection, hidden,
+region masks: millions of rows), and optionally whole models. Plain JSON would hold the arrays as text (tens of
+MB for a 1M-Gaussian model) and could not embed a model; a folder is not one file a user can move, mail or keep
+beside others, and cannot be replaced atomically. A zip is one file, written to a temporary name and renamed
+(``training.core.atomic_write``), readable by any tool (``unzip -p P project.json``), with the arrays as ``.npy``
+members (compressed) and models stored as they are.
+
+Layout::
+
+    project.json             the manifest below
+    arrays/<name>.npy        bool masks and int64 row lists the manifest names
+    models/<i>-<file name>   embedded models (only when saved with embed=True), the file's bytes unchanged
+
+Manifest, version 1 (only ``version`` and each model's ``path`` are required; everything else has a default)::
+
+    {"format": "splatstyler-project", "version": 1,
+     "models": [{"name": "fox", "path": "fox.ply", "abs_path": "/data/fox.ply", "sha256": "...",
+                 "embedded": "models/0-fox.ply" | null,
+                 "original": {"path": ..., "abs_path": ..., "sha256": ..., "embedded": ...} | null,
+                 "kept": "arrays/m0_kept.npy" | null,       # int64 file rows kept, in order (the editor's index)
+                 "selected": "arrays/m0_selected.npy" | null, # bool over the kept rows
+                 "hidden": "arrays/m0_hidden.npy" | null,     # bool over the kept rows
+                 "transform": [[4x4]],                          # similarity, the model into the scene
+                 "colour": [{"region": "arrays/..." | null, "brightness": 0, "contrast": 0, "saturation": 0,
+                             "hue": 0, "temperature": 0}, ...],  # regions: bool over the file's rows
+                 "strength": 1.0, "strength_regions": [{"region": "arrays/...", "strength": 0.5}]}],
+     "dataset": {"path": ..., "abs_path": ...} | null, "painting": {...} | null,
+     "stylize": {StylizeConfig fields},
+     "camera": {keyframe: world_to_camera, fx, fy, cx, cy, width, height; target_distance} | null,
+     "camera_path": {"duration": 8, "fps": 30, "loop": false, "keyframes": [...]},
+     "layout": "imgui ini text",
+     "up": [0, -1, 0], "world": [[4x4]]}   # the scene's up axis, and a similarity after every model's transform
+
+Paths are stored relative to the project's folder (``path``) and absolute (``abs_path``); opening tries the
+relative one first, so a project moved together with its files still opens, and one moved alone too.
+
+Opening (``open_project``) refuses what cannot be a project (not a zip, no manifest, bad JSON, wrong types, a
+newer version) with one ``InputError`` line naming the file; files that moved or changed are not fatal: each
+gives one line in the returned ``problems`` and the rest opens. Older versions are upgraded step by step by
+``MIGRATIONS`` before the manifest is read.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import io
+import json
+import math
+import os
+import zipfile
+from dataclasses import dataclass, field, fields
+from pathlib import Path
+from typing import Callable
+
+import numpy as np
+
+from training.core.atomic_write import atomic_path
+from training.core.errors import InputError
+from training.model.colour_edit import ColourAdjustment, ColourEdits
+
+FORMAT = "splatstyler-project"
+FORMAT_VERSION = 1
+SUFFIX = ".splatproj"
+MANIFEST = "project.json"
+# version n -> a function giving the version n+1 manifest; a new version adds its step here
+MIGRATIONS: dict[int, Callable[[dict], dict]] = {}
+_HASH_CHUNK = 1 << 20
+
+
+# --------------------------------------------------------------------------------------------- the project
+@dataclass
+class FileRef:
+    """A file the project names. ``path`` is where it was found (or recorded, when it is missing)."""
+
+    path: Path
+    sha256: str | None = None
+    embedded: str | None = None  # member name in the project zip
+    missing: bool = False  # not found at either recorded place (and not embedded)
+    changed: bool = False  # found, but its content hash differs from the recorded one
+
+
+@dataclass
+class ModelEntry:
+    """One model in the scene and its edits. Row masks over the kept rows; colour regions over the file's rows."""
+
+    file: FileRef
+    name: str = ""
+    original: FileRef | None = None  # the unstylized model, for style strength
+    kept: np.ndarray | None = None  # (M,) int64 file rows kept, in order; None: all
+    selected: np.ndarray | None = None  # (M,) bool
+    hidden: np.ndarray | None = None  # (M,) bool
+    transform: np.ndarray = field(default_factory=lambda: np.eye(4))
+    colour: ColourEdits = field(default_factory=ColourEdits)
+
+    @property
+    def usable(self) -> bool:
+        """Its files are there and unchanged, so its edits fit them."""
+        refs = [self.file] + ([self.original] if self.colour.uses_original and self.original else [])
+        return not any(r.missing or r.changed for r in refs)
+
+
+@dataclass
+class Project:
+    models: list[ModelEntry] = field(default_factory=list)
+    dataset: FileRef | None = None
+    painting: FileRef | None = None
+    stylize: dict = field(default_factory=dict)  # StylizeConfig fields (stylize_config() builds one)
+    camera: object = None  # app.camera_path.Keyframe or None
+    camera_distance: float = 1.0  # the viewer's orbit centre, this far in front of the camera
+    path_keys: list = field(default_factory=list)  # app.camera_path.Keyframe
+    path_duration: float = 8.0
+    path_fps: float = 30.0
+    path_loop: bool = False
+    layout: str = ""  # imgui ini text of the dock layout
+    up: np.ndarray = field(default_factory=lambda: np.array([0.0, -1.0, 0.0]))
+    world: np.ndarray = field(default_factory=lambda: np.eye(4))  # similarity: up axis and scale
+    source: Path | None = None  # the file it was opened from (where embedded models are read)
+
+    def stylize_config(self):
+        """The stylization settings as a StylizeConfig (validated when the project was opened)."""
+        from training.stylize.config import StylizeConfig
+
+        return StylizeConfig(**self.stylize)
+
+    def open_model(self, ref: FileRef):
+        """The Gaussians of a model file the project names (embedded ones from the project file)."""
+        if ref.embedded is not None and self.source is not None:
+            import tempfile
+
+            with zipfile.ZipFile(self.source) as z, tempfile.TemporaryDirectory() as tmp:
+                target = Path(tmp) / Path(ref.embedded).name
+                target.write_bytes(z.read(ref.embedded))
+                return read_model(target)
+        if ref.missing:
+            raise InputError(ref.path, "model file not found")
+        return read_model(ref.path)
+
+
+def read_model(path: Path):
+    """A .splat model by its name, anything else as a PLY (read_ply names the file if it is not one)."""
+    if Path(path).suffix.lower() == ".splat":
+        from training.model.splat_io import read_splat
+
+        return read_splat(path)
+    from training.model.ply_io import read_ply
+
+    return read_ply(path)
+
+
+def file_sha256(path: str | Path) -> str:
+    h = hashlib.sha256()
+    with open(path, "rb") as f:
+        for chunk in iter(lambda: f.read(_HASH_CHUNK), b""):
+            h.update(chunk)
+    return h.hexdigest()
+
+
+# --------------------------------------------------------------------------------------------- saving
+def save_project(path: str | Path, project: Project, embed: bool = False) -> Path:
+    """Write ``project`` to ``path`` (``.splatproj`` added when missing) atomically. Each model's hash is taken
+    from the file as it is now (the edits refer to those rows), except for a file opened as missing or changed,
+    which keeps its recorded hash (so it is still recognised, or still flagged); ``embed`` copies the model files
+    into the project (models already embedded stay embedded). Returns the path written."""
+    path = Path(path)
+    if path.suffix != SUFFIX:
+        path = path.with_name(path.name + SUFFIX)
+    folder = path.absolute().parent
+    arrays: dict[str, np.ndarray] = {}
+    embedded: dict[str, tuple[str, object]] = {}  # member -> ("file", path) | ("zip", member in the source)
+
+    def ref(r: FileRef | None, tag: str, hash_it: bool = False, embed_it: bool = False):
+        if r is None:
+            return None
+        out = {"path": _relative(r.path, folder), "abs_path": str(Path(r.path).absolute())}
+        if hash_it:
+            if (r.embedded is not None and project.source is not None) or r.changed:
+                out["sha256"] = r.sha256  # a changed file keeps the hash its edits were made on: still flagged
+            elif Path(r.path).is_file():
+                out["sha256"] = file_sha256(r.path)
+            elif r.sha256:
+                out["sha256"] = r.sha256  # missing now: keep what it was, so it is recognised when it is back
+            member = None
+            if r.embedded is not None and project.source is not None:
+                member = f"models/{tag}-{Path(r.path).name}"
+                embedded[member] = ("zip", r.embedded)
+            elif embed_it:
+                if not Path(r.path).is_file():
+                    raise InputError(r.path, "cannot embed this model: file not found")
+                member = f"models/{tag}-{Path(r.path).name}"
+                embedded[member] = ("file", Path(r.path))
+            out["embedded"] = member
+        return out
+
+    def array(name: str, a) -> str | None:
+        if a is None:
+            return None
+        member = f"arrays/{name}.npy"
+        arrays[member] = np.asarray(a)
+        return member
+
+    models = []
+    for i, m in enumerate(project.models):
+        colour = m.colour
+        models.append({
+            "name": m.name, **ref(m.file, str(i), True, embed),
+            "original": ref(m.original, f"{i}-original", True, embed),
+            "kept": array(f"m{i}_kept", None if m.kept is None else np.asarray(m.kept, np.int64)),
+            "selected": array(f"m{i}_selected", m.selected), "hidden": array(f"m{i}_hidden", m.hidden),
+            "transform": np.asarray(m.transform, float).tolist(),
+            "colour": [{"region": array(f"m{i}_colour{j}", region), **adj.to_dict()}
+                       for j, (region, adj) in enumerate(colour.adjustments)],
+            "strength": float(colour.strength),
+            "strength_regions": [{"region": array(f"m{i}_strength{j}", region), "strength": float(s)}
+                                 for j, (region, s) in enumerate(colour.strength_regions)],
+        })
+    manifest = {
+        "format": FORMAT, "version": FORMAT_VERSION, "models": models,
+        "dataset": ref(project.dataset, "dataset"), "painting": ref(project.painting, "painting"),
+        "stylize": _jsonable(project.stylize),
+        "camera": None if project.camera is None else {**project.camera.to_dict(),
+                                                       "target_distance": float(project.camera_distance)},
+        "camera_path": {"duration": float(project.path_duration), "fps": float(project.path_fps),
+                        "loop": bool(project.path_loop), "keyframes": [k.to_dict() for k in project.path_keys]},
+        "layout": project.layout,
+        "up": np.asarray(project.up, float).tolist(), "world": np.asarray(project.world, float).tolist(),
+    }
+    with atomic_path(path) as tmp:
+        with zipfile.ZipFile(tmp, "w", zipfile.ZIP_DEFLATED) as z:
+            z.writestr(MANIFEST, json.dumps(manifest, indent=1) + "\n")
+            for member, a in arrays.items():
+                buf = io.BytesIO()
+                np.save(buf, a, allow_pickle=False)
+                z.writestr(member, buf.getvalue())
+            for member, (kind, src) in embedded.items():
+                # models are stored, not deflated: PLY floats barely compress and are large
+                if kind == "file":
+                    z.write(src, member, compress_type=zipfile.ZIP_STORED)
+                else:
+                    with zipfile.ZipFile(project.source) as old:
+                        z.writestr(zipfile.ZipInfo(member), old.read(src), compress_type=zipfile.ZIP_STORED)
+    return path
+
+
+def _relative(p, folder: Path) -> str:
+    try:
+        return os.path.relpath(Path(p).absolute(), folder)
+    except ValueError:  # another drive (Windows): only the absolute path means anything
+        return str(Path(p).absolute())
+
+
+def _jsonable(value):
+    if isinstance(value, dict):
+        return {k: _jsonable(v) for k, v in value.items()}
+    if isinstance(value, (list, tuple)):
+        return [_jsonable(v) for v in value]
+    return value
+
+
+# --------------------------------------------------------------------------------------------- opening
+def open_project(path: str | Path, check_hashes: bool = True) -> tuple[Project, list[str]]:
+    """Read a project file. Returns the project and one line per problem it survived (a file not found, a model
+    changed since it was saved, a setting that no longer applies); InputError for a file that is not a project."""
+    path = Path(path)
+    if not path.is_file():
+        raise InputError(path, "project file does not exist" if not path.exists() else "is not a file")
+    try:
+        z = zipfile.ZipFile(path)
+    except (zipfile.BadZipFile, OSError):
+        raise InputError(path, "not a splatstyler project (not a zip file)") from None
+    with z:
+        try:
+            data = json.loads(z.read(MANIFEST))
+        except KeyError:
+            raise InputError(path, f"not a splatstyler project (no {MANIFEST} inside)") from None
+        except (ValueError, UnicodeDecodeError) as exc:
+            raise InputError(path, f"{MANIFEST} is not valid JSON ({str(exc).splitlines()[0]})") from None
+        reader = _Reader(path, z, check_hashes)
+        project = reader.project(upgrade(data, path))
+    project.source = path
+    return project, reader.problems
+
+
+def upgrade(data, name) -> dict:
+    """The manifest brought to FORMAT_VERSION through MIGRATIONS, one version at a time."""
+    if not isinstance(data, dict):
+        raise InputError(name, f"{MANIFEST} must hold a JSON object")
+    version = data.get("version")
+    if isinstance(version, bool) or not isinstance(version, int) or version < 1:
+        raise InputError(name, f"project 'version' must be a whole number >= 1, got {version!r}")
+    if version > FORMAT_VERSION:
+        raise InputError(name, f"project version {version} was written by a newer splatstyler; this one reads "
+                               f"versions 1..{FORMAT_VERSION}")
+    while version < FORMAT_VERSION:
+        if version not in MIGRATIONS:
+            raise InputError(name, f"cannot upgrade a version {version} project (no migration)")
+        data = MIGRATIONS[version](dict(data))
+        version += 1
+        data["version"] = version
+    return data
+
+
+class _Reader:
+    """Turns a manifest into a Project: types and shapes checked here, once; missing or changed files listed."""
+
+    def __init__(self, path: Path, z: zipfile.ZipFile, check_hashes: bool):
+        self.path, self.z, self.check_hashes = path, z, check_hashes
+        self.folder = path.absolute().parent
+        self.problems: list[str] = []
+
+    def fail(self, problem: str):
+        raise InputError(self.path, problem)
+
+    def project(self, data: dict) -> Project:
+        from app.camera_path import _keyframe
+
+        models = data.get("models", [])
+        if not isinstance(models, list):
+            self.fail("'models' must be a list")
+        p = Project(models=[self.model(m, i) for i, m in enumerate(models)])
+        p.dataset = self.ref(data.get("dataset"), "dataset")
+        p.painting = self.ref(data.get("painting"), "painting")
+        p.stylize = self.stylize(data.get("stylize", {}))
+        if data.get("camera") is not None:
+            p.camera = _keyframe(data["camera"], 0, self.path)
+            p.camera_distance = self.number(data["camera"], "target_distance", 1.0, "camera.", positive=True)
+        path = data.get("camera_path", {})
+        if not isinstance(path, dict):
+            self.fail("'camera_path' must be an object")
+        keys = path.get("keyframes", [])
+        if not isinstance(keys, list):
+            self.fail("'camera_path.keyframes' must be a list")
+        p.path_keys = [_keyframe(k, i, self.path) for i, k in enumerate(keys)]
+        p.path_duration = self.number(path, "duration", 8.0, "camera_path.", positive=True)
+        p.path_fps = self.number(path, "fps", 30.0, "camera_path.", positive=True)
+        p.path_loop = bool(path.get("loop", False))
+        p.layout = data.get("layout", "")
+        if not isinstance(p.layout, str):
+            self.fail("'layout' must be text")
+        p.up = self.vector(data.get("up", [0.0, -1.0, 0.0]), "up")
+        p.world = self.similarity(data.get("world", np.eye(4).tolist()), "world")
+        return p
+
+    # -------------------------------------------------------------- pieces
+    def number(self, d: dict, key: str, default, where: str = "", positive=False, lo=None, hi=None) -> float:
+        v = d.get(key, default)
+        if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v):
+            self.fail(f"'{where}{key}' must be a finite number, got {v!r}")
+        if positive and v <= 0:
+            self.fail(f"'{where}{key}' must be positive, got {v!r}")
+        if (lo is not None and v < lo) or (hi is not None and v > hi):
+            self.fail(f"'{where}{key}' must be in [{lo}, {hi}], got {v!r}")
+        return float(v)
+
+    def vector(self, v, where: str) -> np.ndarray:
+        try:
+            a = np.array(v, dtype=np.float64)
+        except (TypeError, ValueError):
+            self.fail(f"'{where}' must be 3 numbers")
+        if a.shape != (3,) or not np.isfinite(a).all() or not np.linalg.norm(a) > 0:
+            self.fail(f"'{where}' must be 3 finite numbers, not all 0")
+        return a / np.linalg.norm(a)
+
+    def similarity(self, v, where: str) -> np.ndarray:
+        from training.model.transform import split_similarity
+
+        try:
+            m = np.array(v, dtype=np.float64)
+            split_similarity(m)
+        except (TypeError, ValueError) as exc:
+            self.fail(f"'{where}': {exc}")
+        return m
+
+    def array(self, member, where: str, dtype: str, length: int | None = None) -> np.ndarray | None:
+        if member is None:
+            return None
+        if not isinstance(member, str):
+            self.fail(f"'{where}' must name an array member, got {member!r}")
+        try:
+            a = np.load(io.BytesIO(self.z.read(member)), allow_pickle=False)
+        except KeyError:
+            self.fail(f"'{where}' names {member}, which is not in the project")
+        except (ValueError, OSError) as exc:
+            self.fail(f"{member} is not a readable .npy array ({exc})")
+        ok = a.dtype == bool if dtype == "bool" else a.dtype.kind in "iu"
+        if a.ndim != 1 or not ok:
+            self.fail(f"{member} must be a 1-D {dtype} array, got {a.dtype} {a.shape}")
+        if length is not None and len(a) != length:
+            self.fail(f"{member} has {len(a)} rows, expected {length}")
+        return a.astype(np.int64) if dtype == "int" else a
+
+    def ref(self, d, what: str, recorded_hash: bool = False) -> FileRef | None:
+        if d is None:
+            return None
+        if isinstance(d, str):
+            d = {"path": d}
+        if not isinstance(d, dict) or not isinstance(d.get("path"), str) or not d["path"]:
+            self.fail(f"{what}: 'path' must be a file name")
+        sha = d.get("sha256")
+        if sha is not None and (not isinstance(sha, str) or len(sha) != 64):
+            self.fail(f"{what}: 'sha256' must be 64 hex digits")
+        embedded = d.get("embedded")
+        if embedded is not None:
+            if not isinstance(embedded, str) or embedded not in self.z.namelist():
+                self.fail(f"{what}: embedded model {embedded!r} is not in the project")
+            return FileRef(Path(d.get("abs_path") or d["path"]), sha, embedded)
+        candidates = [self.folder / d["path"]] + ([Path(d["abs_path"])] if d.get("abs_path") else [])
+        found = next((c for c in candidates if c.exists()), None)
+        if found is None:
+            tried = " or ".join(dict.fromkeys(str(c) for c in candidates))
+            self.problems.append(f"{candidates[0]}: {what} not found (looked for {tried})")
+            return FileRef(candidates[-1], sha, missing=True)
+        ref = FileRef(Path(os.path.normpath(found)), sha)
+        if sha is not None and self.check_hashes and found.is_file() and file_sha256(found) != sha:
+            ref.changed = True
+            self.problems.append(f"{ref.path}: {what} changed since the project was saved (content hash differs)")
+        return ref
+
+    def stylize(self, d) -> dict:
+        from training.stylize.config import StylizeConfig
+
+        if not isinstance(d, dict):
+            self.fail("'stylize' must be an object")
+        known = {f.name for f in fields(StylizeConfig)}
+        unknown = sorted(set(d) - known)
+        if unknown:
+            self.problems.append(f"{self.path}: stylization settings {', '.join(unknown)} are not known to this "
+                                 "splatstyler: ignored")
+        kept = {k: (tuple(v) if k == "background" and isinstance(v, list) else v) for k, v in d.items() if k in known}
+        try:
+            StylizeConfig(**kept).validate()
+        except (TypeError, ValueError) as exc:
+            self.problems.append(f"{self.path}: stylization settings: {exc}: the defaults are used")
+            return {}
+        return kept
+
+    def model(self, d, i: int) -> ModelEntry:
+        where = f"models[{i}]"
+        if not isinstance(d, dict):
+            self.fail(f"{where} must be an object")
+        name = d.get("name") or Path(str(d.get("path", ""))).stem
+        file = self.ref(d, f"model '{name}'")
+        original = self.ref(d.get("original"), f"original model of '{name}'")
+        kept = self.array(d.get("kept"), f"{where}.kept", "int")
+        if kept is not None and (len(kept) and kept.min() < 0 or len(np.unique(kept)) != len(kept)):
+            self.fail(f"{where}.kept must hold distinct row numbers >= 0")
+        n = None if kept is None else len(kept)
+        selected = self.array(d.get("selected"), f"{where}.selected", "bool", n)
+        hidden = self.array(d.get("hidden"), f"{where}.hidden", "bool", n if n is not None else
+                            (None if selected is None else len(selected)))
+        adjustments, regions = [], []
+        for j, c in enumerate(_list(d.get("colour", []), f"{where}.colour", self)):
+            params = {k: self.number(c, k, 0.0, f"{where}.colour[{j}].") for k in ColourAdjustment().to_dict()}
+            adj = ColourAdjustment(**params)
+            try:
+                adj.validate()
+            except ValueError as exc:
+                self.fail(f"{where}.colour[{j}]: {exc}")
+            adjustments.append((self.array(c.get("region"), f"{where}.colour[{j}].region", "bool"), adj))
+        for j, c in enumerate(_list(d.get("strength_regions", []), f"{where}.strength_regions", self)):
+            regions.append((self.array(c.get("region"), f"{where}.strength_regions[{j}].region", "bool"),
+                            self.number(c, "strength", 1.0, f"{where}.strength_regions[{j}].", lo=0, hi=1)))
+        lengths = {len(r) for r, _ in adjustments + regions if r is not None}
+        if len(lengths) > 1:
+            self.fail(f"{where}: its colour and strength regions differ in length")
+        colour = ColourEdits(adjustments, self.number(d, "strength", 1.0, f"{where}.", lo=0, hi=1), regions)
+        if colour.uses_original and original is None:
+            self.fail(f"{where}: style strength below 1 needs an 'original' model")
+        return ModelEntry(file, name, original, kept, selected, hidden,
+                          self.similarity(d.get("transform", np.eye(4).tolist()), f"{where}.transform"), colour)
+
+
+def _list(v, where: str, reader: _Reader) -> list[dict]:
+    if not isinstance(v, list) or not all(isinstance(x, dict) for x in v):
+        reader.fail(f"'{where}' must be a list of objects")
+    return v
