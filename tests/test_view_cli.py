@@ -38,3 +38,36 @@ def test_view_of_a_text_file_is_not_a_model(tmp_path):
     bad.write_text("hello")
     proc = view(str(bad))
     assert proc.returncode == 2 and "is not a Gaussian model file" in proc.stderr
+
+
+@pytest.mark.slow
+def test_sigterm_closes_the_viewer_saving_the_running_reconstruction(tmp_path):
+    """What timeout, systemd, Docker and SLURM send: the window closes as the close button does, the
+    reconstruction's checkpoint and model are saved, exit status 143, and no stack dump (pycolmap's glog handler,
+    installed when the COLMAP scene is read, must not take SIGTERM)."""
+    import os
+    import signal
+    import time
+
+    from assets.demo.assets import demo_assets
+    from training.reconstruct.checkpoint import load_checkpoint
+
+    scene = demo_assets().scene_dir
+    env = dict(os.environ, XDG_CONFIG_HOME=str(tmp_path / "config"))
+    env.pop("DISPLAY", None)
+    proc = subprocess.Popen([sys.executable, "-m", "app", "view", "--data", str(scene), "--run", "reconstruct",
+                             "--iters", "3000", "-o", str(tmp_path / "out")], cwd=ROOT, env=env,
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    try:
+        time.sleep(30)  # the scene loads and the trainer steps
+        assert proc.poll() is None, proc.communicate()
+        proc.send_signal(signal.SIGTERM)
+        out, err = proc.communicate(timeout=120)
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+    assert proc.returncode == 143, (out, err)
+    assert "SIGTERM received" in out and "stack trace" not in err and "Traceback" not in err, (out, err)
+    state = load_checkpoint(tmp_path / "out" / "reconstruction" / "checkpoint.pt")
+    assert 0 < state["step"] < 3000
+    assert (tmp_path / "out" / "reconstruction" / "point_cloud.ply").is_file()

@@ -110,10 +110,14 @@ def _in_viewer(args, data: Path, style: Path, out: Path, generated_scene: bool) 
                     recon_iters=_recon_iters(args, generated_scene), downscale=1 if generated_scene else None,
                     stylize_overrides=overrides)
     print("opening the viewer (close the window to stop; --headless runs in the console)", flush=True)
-    run_viewer(app)
+    stopped_by = run_viewer(app)
     for path in app.session.saved:
         print(f"saved {path}")
-    recon, styled = out / "reconstruction" / "point_cloud.ply", out / "stylized" / "point_cloud.ply"
+    if stopped_by:
+        return 128 + stopped_by
+    # the run's own folder (stylized, or stylized_2... when an earlier demo's output is there)
+    recon = out / "reconstruction" / "point_cloud.ply"
+    styled = app.training.runs[-1] if app.training.runs else out / "stylized" / "point_cloud.ply"
     if recon.is_file() and styled.is_file() and not app.error:
         from app.demo_sheet import demo_contact_sheet
 

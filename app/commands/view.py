@@ -69,9 +69,9 @@ def run(args: argparse.Namespace) -> int:
     start = {"all": "demo"}.get(args.run, args.run)
     app = ViewerApp(Paths(model=args.model, data=args.data, style=args.style, out=args.output), start=start,
                     preset=args.preset, recon_iters=args.iters, downscale=args.downscale)
-    run_viewer(app)
+    stopped_by = run_viewer(app)
     for path in app.session.saved:
         print(f"saved {path}")
     if app.error:
         print(f"splatstyler: last error in the viewer: {app.error}")
-    return 0
+    return 128 + stopped_by if stopped_by else 0

@@ -630,13 +630,32 @@ def _span(points) -> float:
     return max(float(np.ptp(pts, axis=0).max()), 1e-6)
 
 
-def run(app: ViewerApp) -> None:
-    """Open the window and run until it is closed (Ctrl-C closes it too, saving as a close does)."""
-    from imgui_bundle import immapp
+def run(app: ViewerApp) -> int | None:
+    """Open the window and run until it is closed. SIGTERM (what timeout, systemd, Docker, SLURM send) and SIGINT
+    (Ctrl-C) close it as the close button does: the trainer stops at its next step and saves, the layout is saved,
+    and this returns the signal's number (None for a close by the user). A second signal while closing is ignored,
+    so the save finishes."""
+    import signal
+
+    from imgui_bundle import hello_imgui, immapp
 
     from app.viewer.platform import choose_platform, prepare_glfw
 
     prepare_glfw(choose_platform())
+    # pycolmap's glog installs its own SIGTERM handler (a stack dump, no save) when it is first imported, which
+    # opening a COLMAP dataset would do mid-session: import it now, and put Python's handlers in after it
+    import pycolmap  # noqa: F401
+
+    stopped_by: list[int] = []
+
+    def close(signum, _frame) -> None:
+        if stopped_by:
+            return
+        stopped_by.append(signum)
+        print(f"splatstyler: {signal.Signals(signum).name} received: closing the window and saving", flush=True)
+        hello_imgui.get_runner_params().app_shall_exit = True
+
+    previous = {sig: signal.signal(sig, close) for sig in (signal.SIGTERM, signal.SIGINT)}
     try:
         immapp.run(app.runner_params(), immapp.AddOnsParams(with_implot=True))
     except KeyboardInterrupt:
@@ -644,3 +663,6 @@ def run(app: ViewerApp) -> None:
     finally:
         if not app.closed:
             app.session.close()
+        for sig, handler in previous.items():
+            signal.signal(sig, handler)
+    return stopped_by[0] if stopped_by else None
