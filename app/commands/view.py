@@ -14,7 +14,8 @@ import argparse
 def register(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser("view", help="open the live viewer (watch and steer reconstruction and stylization)",
                        description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    p.add_argument("model", nargs="?", default="", metavar="MODEL", help="a Gaussian model (.ply or .splat)")
+    p.add_argument("model", nargs="?", default="", metavar="MODEL",
+                   help="a Gaussian model (.ply or .splat), or a project (.splatproj) saved from the viewer")
     p.add_argument("--data", default="", help="the scene (COLMAP folder or transforms.json): cameras, photos")
     p.add_argument("--style", default="", help="the painting to stylize after")
     p.add_argument("-o", "--output", default="viewer_out", help="where runs and exports are written "
@@ -37,7 +38,11 @@ def check_arguments(args: argparse.Namespace) -> None:
     from app.commands.info import detect_kind
     from training.core.errors import InputError
 
-    if args.model and detect_kind(Path(args.model)) == "scene":
+    if args.model.lower().endswith(".splatproj"):
+        from app.project import open_project
+
+        open_project(args.model, check_hashes=False)  # not a project: one line; moved files are said in the window
+    elif args.model and detect_kind(Path(args.model)) == "scene":
         raise InputError(args.model, "is not a Gaussian model file (.ply or .splat)")
     if args.data:
         from training.scene.loader import load_scene
@@ -67,8 +72,9 @@ def run(args: argparse.Namespace) -> int:
               "run it on a desktop, over `ssh -X`, or under Xvfb with a VNC server (Ctrl-C or SIGTERM stops and "
               "saves)", file=sys.stderr)
     start = {"all": "demo"}.get(args.run, args.run)
-    app = ViewerApp(Paths(model=args.model, data=args.data, style=args.style, out=args.output), start=start,
-                    preset=args.preset, recon_iters=args.iters, downscale=args.downscale)
+    project = args.model if args.model.lower().endswith(".splatproj") else None
+    app = ViewerApp(Paths(model="" if project else args.model, data=args.data, style=args.style, out=args.output),
+                    start=start, preset=args.preset, recon_iters=args.iters, downscale=args.downscale, project=project)
     stopped_by = run_viewer(app)
     for path in app.session.saved:
         print(f"saved {path}")

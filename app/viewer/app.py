@@ -18,7 +18,8 @@ import numpy as np
 
 from app.viewer.runs import RunsMixin
 from app.viewer.session import LiveSession, SessionMessage
-from app.viewer.state import CameraPathState, EditTools, ExportSettings, TrainingState, WindowState
+from app.viewer.state import (CameraPathState, EditTools, ExportSettings, ProjectState, TrainingState,
+                              WindowState)
 from training.core.messages import ModelSnapshot, TrainerEvent
 
 IDLE_FPS = 4.0  # frames per second while nothing happens: each frame costs a running trainer CPU time
@@ -59,7 +60,7 @@ def snapshot_of(gaussians, version: int = 0) -> ModelSnapshot:
 class ViewerApp(RunsMixin):
     def __init__(self, paths: Paths | None = None, start: str | None = None, preset: str = "quick",
                  recon_iters: int | None = None, stylize_overrides: dict | None = None,
-                 downscale: int | None = None):
+                 downscale: int | None = None, project: str | None = None):
         from training.stylize.trainer import StylizeConfig
 
         self.paths = paths or Paths()
@@ -77,6 +78,7 @@ class ViewerApp(RunsMixin):
         self.training = TrainingState(preset=preset, recon_iters=recon_iters, downscale=downscale,
                                       stylize=StylizeConfig(preset="quick", **(stylize_overrides or {})))
         self.window = WindowState()
+        self.project = ProjectState(path=project or "")
         self.original: ModelSnapshot | None = None  # the model before stylization (split view, right: stylized)
         self.model_info: dict[str, Any] = {}
         self.messages: list[str] = []  # one-line messages for the user, newest last
@@ -161,6 +163,8 @@ class ViewerApp(RunsMixin):
         suffix = p.suffix.lower()
         if suffix in (".ply", ".splat"):
             self.open_model(path)
+        elif suffix == ".splatproj":
+            self.open_project(path)
         elif suffix in IMAGE_SUFFIXES:
             self.open_style(path)
         elif p.is_dir() or p.name == "transforms.json":
@@ -175,6 +179,48 @@ class ViewerApp(RunsMixin):
         """GLFW's drop callback (during its event polling): queued, opened at the next frame."""
         self._dropped.extend(str(p) for p in paths)
         self.note_input()
+
+    def open_project(self, path: str) -> None:
+        """A .splatproj: its model with the edits, the dataset, the painting, the stylization settings, the camera
+        and keyframes, and the dock layout; one line for each file it could not find."""
+        from app.viewer.project_io import apply_project
+
+        opened = apply_project(self, path)
+        for line in opened.problems:
+            self.say(line)
+        self.project.path, self.project.opened = str(path), opened
+        self.project.layout_to_load = opened.layout
+        self.training.base_model = self.paths.model
+        self.say(f"opened project {path}")
+
+    def save_project(self, path: str | None = None) -> Path:
+        """The session as a project file (atomically): to ``path``, or where it was opened or saved, or
+        OUTPUT/project.splatproj."""
+        from imgui_bundle import imgui
+
+        from app.project import save_project
+        from app.viewer.project_io import project_from_app
+
+        target = Path(path or self.project.path or Path(self.paths.out) / "project.splatproj")
+        opened = self.project.opened
+        entry = opened.entry if opened is not None else None
+        project = project_from_app(self, layout=imgui.save_ini_settings_to_memory(),
+                                   transform=None if entry is None else entry.transform,
+                                   colour=None if entry is None else entry.colour,
+                                   original=None if entry is None or entry.original is None else str(entry.original.path),
+                                   carry=[] if opened is None else opened.not_shown)
+        written = save_project(target, project)
+        self.project.path = str(written)
+        self.say(f"saved project {written}")
+        return written
+
+    def load_pending_layout(self) -> None:
+        """Before a frame begins (imgui's rule for loading settings): the layout a project brought."""
+        if self.project.layout_to_load:
+            from imgui_bundle import imgui
+
+            imgui.load_ini_settings_from_memory(self.project.layout_to_load)
+            self.project.layout_to_load = ""
 
     def open_style(self, path: str) -> None:
         from training.stylize.style_image import load_style_image
@@ -469,6 +515,8 @@ class ViewerApp(RunsMixin):
                 self.guarded(f"open {what}", fn, path)
         if self.view.camera is None:
             self._place_camera()
+        if self.project.path:
+            self.guarded("open project", self.open_project, self.project.path)
         if self._start == "demo":
             self.guarded("start", self.start_reconstruction, then_stylize=True)
         elif self._start == "reconstruct":
@@ -531,7 +579,9 @@ class ViewerApp(RunsMixin):
         k, ctrl, shift = imgui.Key, imgui.Key.mod_ctrl.value, imgui.Key.mod_shift.value
         chord = imgui.is_key_chord_pressed
         if self.editor is not None and not io.want_text_input:
-            if chord(ctrl | k.z.value):
+            if chord(ctrl | k.s.value):
+                self.guarded("save project", self.save_project)
+            elif chord(ctrl | k.z.value):
                 self.editor.undo()
             elif chord(ctrl | k.y.value) or chord(ctrl | shift | k.z.value):
                 self.editor.redo()
@@ -567,7 +617,8 @@ class ViewerApp(RunsMixin):
 
         actions = {"model": (self.open_model, ["Gaussians", "*.ply *.splat"]),
                    "data": (self.open_data, ["Scenes", "transforms.json cameras.bin images.bin"]),
-                   "style": (self.open_style, ["Images", "*.jpg *.jpeg *.png *.exr *.tif"])}
+                   "style": (self.open_style, ["Images", "*.jpg *.jpeg *.png *.exr *.tif"]),
+                   "project": (self.open_project, ["Projects", "*.splatproj"])}
         action, filters = actions[what]
         path = choose_file(f"Open {what}", filters)
         if path:
@@ -619,6 +670,7 @@ class ViewerApp(RunsMixin):
         # right after imgui's new frame, before the docked panels and the view: the frame's news, shortcuts and
         # moves reach the view in the frame that draws it
         rp.callbacks.post_new_frame = self.gui
+        rp.callbacks.pre_new_frame = self.load_pending_layout
         configure(rp, self)
         return rp
 

@@ -128,6 +128,11 @@ def menus(app) -> None:
             if imgui.menu_item(label, "", False)[0]:
                 app.guarded("open", app.open_from_dialog, attr)
         imgui.separator()
+        if imgui.menu_item("Open project...", "", False)[0]:
+            app.guarded("open project", app.open_from_dialog, "project")
+        if imgui.menu_item("Save project", "Ctrl+S", False)[0]:
+            app.guarded("save project", app.save_project)
+        imgui.separator()
         if imgui.menu_item("Quit", "", False)[0]:
             hello_imgui.get_runner_params().app_shall_exit = True
         imgui.end_menu()

@@ -65,6 +65,13 @@ class TrainingState:
 
 
 @dataclass
+class ProjectState:
+    path: str = ""  # the project file this session was opened from or last saved to
+    opened: Any = None  # project_io.Opened: what the viewer does not hold itself (transform, colour, other models)
+    layout_to_load: str = ""  # a project's dock layout, applied before the next frame
+
+
+@dataclass
 class WindowState:
     view_rect: tuple[int, int, int, int] = (0, 0, 1, 1)  # the 3D view in the window (logical pixels)
     view_hovered: bool = False
