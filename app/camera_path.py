@@ -26,6 +26,7 @@ from pathlib import Path
 import numpy as np
 
 from renderer_gl.camera import look_at, orbit  # noqa: F401  (look_at is part of this module's interface)
+from training.model.transform import matrix_to_quat  # one Shepperd conversion for paths and model transforms
 from training.core.atomic_write import atomic_open
 from training.core.errors import InputError
 
@@ -83,26 +84,6 @@ def pose(center, rotation_c2w) -> np.ndarray:
 
 
 # ------------------------------------------------------------------------------------------- quaternions
-def matrix_to_quat(r: np.ndarray) -> np.ndarray:
-    """(w, x, y, z) unit quaternion of a rotation matrix (Shepperd's method: stable for every angle)."""
-    m = np.asarray(r, dtype=np.float64)
-    tr = np.trace(m)
-    if tr > 0:
-        s = 2.0 * math.sqrt(1.0 + tr)
-        q = [0.25 * s, (m[2, 1] - m[1, 2]) / s, (m[0, 2] - m[2, 0]) / s, (m[1, 0] - m[0, 1]) / s]
-    else:
-        i = int(np.argmax(np.diag(m)))
-        j, k = (i + 1) % 3, (i + 2) % 3
-        s = 2.0 * math.sqrt(max(1.0 + m[i, i] - m[j, j] - m[k, k], 1e-300))
-        q = [0.0] * 4
-        q[0] = (m[k, j] - m[j, k]) / s
-        q[1 + i] = 0.25 * s
-        q[1 + j] = (m[j, i] + m[i, j]) / s
-        q[1 + k] = (m[k, i] + m[i, k]) / s
-    q = np.asarray(q)
-    return q / np.linalg.norm(q)
-
-
 def quat_to_matrix(q: np.ndarray) -> np.ndarray:
     w, x, y, z = np.asarray(q, dtype=np.float64) / np.linalg.norm(q)
     return np.array([[1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)],
