@@ -52,13 +52,15 @@ def main(argv: list[str] | None = None) -> int:
     if not getattr(args, "func", None):
         parser.print_help()
         return 2
+    from app import stop_signals
     from training.core.errors import InputError
 
+    stop_signals.install()
     try:
         return int(args.func(args) or 0)
     except KeyboardInterrupt:
-        print("splatstyler: interrupted", file=sys.stderr)
-        return 130
+        print(f"splatstyler: stopped by {stop_signals.signal_name()}", file=sys.stderr)
+        return stop_signals.exit_code()
     except InputError as exc:
         if args.debug:
             raise

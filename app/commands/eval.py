@@ -71,12 +71,6 @@ def run(args: argparse.Namespace) -> int:
     make_output_dir(out)
     command = "splatstyler eval " + str(args.grid)
     if not args.report_only:
-        import signal
-
-        def stop(signum, frame):  # a kill ends the workers too, as Ctrl-C does
-            raise KeyboardInterrupt
-
-        signal.signal(signal.SIGTERM, stop)
         pool = RayPool(args.ray, threads, num_cpus=cores) if args.ray else LocalPool(workers, threads)
         where = f"Ray ({args.ray})" if args.ray else f"{workers} local worker(s)"
         print(f"eval: {len(grid.cells)} cells on {where}, {threads} thread(s) each", flush=True)

@@ -206,9 +206,11 @@ def run(args) -> int:
         if "bar" in locals():
             bar.close()
         checkpoint()
-        print(f"interrupted at iteration {trainer.step_count}; checkpoint saved to {ckpt_path} "
-              "(continue with --resume)", file=sys.stderr)
-        return 130
+        from app import stop_signals
+
+        print(f"stopped by {stop_signals.signal_name()} at iteration {trainer.step_count}; checkpoint saved to "
+              f"{ckpt_path} (continue with --resume)", file=sys.stderr)
+        return stop_signals.exit_code()
     bar.close()
     seconds = elapsed + (time.perf_counter() - t_start)
     checkpoint()

@@ -71,7 +71,15 @@ def stylize_to_folder(model: Path, data: Path, style: Path, out: Path, config: S
               f"{stylizer.cameras[0].width}x{stylizer.cameras[0].height}; VGG weights: "
               f"{getattr(stylizer.vgg, 'weights_source', 'given')}")
     t0 = time.perf_counter()
-    stylizer.run()
+    try:
+        stylizer.run()
+    except KeyboardInterrupt:  # Ctrl-C or SIGTERM: keep what was stylized so far
+        make_output_dir(out)
+        write_ply(out / "point_cloud.ply", stylizer.stylized_gaussians())
+        if log is not None:
+            log(f"stylize: stopped at iteration {stylizer.iteration}; the model so far is in "
+                f"{out / 'point_cloud.ply'}")
+        raise
     first = stylizer.history[0] if stylizer.history else None
     stylize_seconds = time.perf_counter() - t0
     utilisation = stylizer.utilisation()
