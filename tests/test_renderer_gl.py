@@ -10,6 +10,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from tests.system_deps import requires_library
+
 from renderer_gl import Offscreen, SplatRenderer, create_context, frustum, look_at, polyline, view
 from tests.gl_scenes import BG, camera, psnr, reference_render, separated_grid
 
@@ -361,6 +363,7 @@ def test_bad_input_is_refused(renderer):
         renderer.splat_pass(camera()[0], "normals")
 
 
+@requires_library("OSMesa", "libosmesa6", ("libOSMesa.so.8", "libOSMesa.so.6"))
 def test_osmesa_renders_what_egl_renders(tmp_path):
     """OSMesa in a process of its own (two GL libraries current in one process is asking for trouble)."""
     code = f"""

@@ -7,11 +7,11 @@
 from __future__ import annotations
 
 import pickle
-import shutil
 
 import numpy as np
 import pytest
 
+from tests.system_deps import requires_program
 from tests.viewer_harness import PRELUDE, Xvfb, check_frame, make_demo_scene, run_gui, xvfb_missing
 
 pytestmark = [pytest.mark.slow, pytest.mark.skipif(bool(xvfb_missing()), reason=xvfb_missing() or "ok")]
@@ -87,7 +87,6 @@ def test_x11_view_shows_the_model_after_resize_help_and_selection(demo_scene, x_
     scene_dir, _, model = demo_scene
     found = run_gui(PRELUDE + LOOK + f"""
 import pickle
-import shutil
 import glfw
 from imgui_bundle import glfw_utils, imgui
 app = ViewerApp(Paths(model={str(model)!r}, data={str(scene_dir)!r}, out=str(OUT / "out")))
@@ -234,7 +233,7 @@ run(app)
 """
 
 
-@pytest.mark.skipif(shutil.which("xdotool") is None, reason="xdotool not found (Debian/Ubuntu: apt-get install xdotool)")
+@requires_program("xdotool", "xdotool")
 def test_x11_real_key_events_quick_ctrl_z_undoes_once_and_never_rolls(demo_scene, x_server, tmp_path):
     """Keys typed through the X server (xdotool's XTEST events), as a keyboard types them, into the application's
     own loop (the test engine would swallow real input): a quick Ctrl+Z undoes one deletion, a held one does not

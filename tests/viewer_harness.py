@@ -7,7 +7,6 @@ from __future__ import annotations
 
 import json
 import os
-import shutil
 import subprocess
 import sys
 import textwrap
@@ -105,8 +104,10 @@ class Xvfb:
 
 def xvfb_missing() -> str:
     """Why the X11 tests cannot run here ('' when they can)."""
-    if shutil.which("Xvfb") is None:
-        return "Xvfb not found (Debian/Ubuntu: apt-get install xvfb)"
+    from tests.system_deps import missing_program
+
+    if missing_program("Xvfb", "xvfb"):
+        return missing_program("Xvfb", "xvfb")
     try:
         import Xlib  # noqa: F401
     except ImportError:
