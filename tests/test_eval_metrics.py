@@ -227,7 +227,26 @@ def test_blurred_luminance_psnr():
 KEYS = ({f"consistency_{r}_{k}" for r in ("short", "long") for k in ("rmse", "lpips", "valid", "pairs")}
         | {f"{k}_relu{i}" for k in ("gram", "swd") for i in range(1, 5)}
         | {f"{k}_ratio_{w}" for k in ("gram", "swd") for w in ("pre_ct", "original")}
+        | {f"{k}_ratio_pre_ct_relu{i}" for k in ("gram", "swd") for i in range(1, 5)}
+        | {f"path_{r}_{k}" for r in ("short", "long") for k in ("rmse", "lpips", "valid")} | {"path_frames"}
         | {"structure_distance", "luminance_psnr"})
+
+
+def test_ratio_to_the_start_is_not_ruled_by_a_layer_the_colour_transfer_already_matched():
+    """The flower's case (docs/evaluation.md): the colour transfer brings relu1 to a hundredth of the original's
+    distance, the stylization leaves it at five hundredths (5x the start, a small change) and halves the other
+    layers. A mean of per-layer ratios to the start says 1.6 ("further from the painting"); the ratio of the shares
+    of the original's distance left says about 0.5."""
+    from training.evaluate.measure import _ratio_to_start, _share
+
+    layers = ("relu1", "relu2", "relu3", "relu4")
+    orig = {f"swd_{layer}": 1.0 for layer in layers}
+    pre = {"swd_relu1": 0.01, "swd_relu2": 1.0, "swd_relu3": 1.0, "swd_relu4": 1.0}
+    styl = {"swd_relu1": 0.05, "swd_relu2": 0.5, "swd_relu3": 0.5, "swd_relu4": 0.5}
+    assert np.mean([styl[k] / pre[k] for k in pre]) == pytest.approx(1.625)
+    assert _ratio_to_start(styl, pre, orig, "swd") == pytest.approx(0.3875 / 0.7525)
+    assert _ratio_to_start(pre, pre, orig, "swd") == pytest.approx(1.0)
+    assert _ratio_to_start(styl, orig, orig, "swd") == _share(styl, orig, "swd")  # no colour transfer: one number
 
 
 def test_measure_images_keys_and_reference_values(rendered, lpips, taps, painting):
@@ -245,6 +264,7 @@ def test_measure_images_keys_and_reference_values(rendered, lpips, taps, paintin
     assert m["consistency_long_rmse"] is None and m["consistency_long_pairs"] == 0
     assert m["gram_ratio_original"] == pytest.approx(1.0) and m["swd_ratio_pre_ct"] == pytest.approx(1.0)
     assert m["structure_distance"] == 0.0 and math.isinf(m["luminance_psnr"])
+    assert m["path_short_rmse"] is None and m["path_frames"] is None  # no model to render a path with
     line = summary_line(m)
     assert "n/a long" in line and "1.00x" in line and "inf dB" in line
     with pytest.raises(ValueError, match="style view"):
@@ -307,6 +327,7 @@ def test_measure_stylizer_before_and_after_steps(vgg, lpips, taps, painting):
     after = measure_stylizer(s, lpips=lpips, taps=taps, style_views=2, original=g)
     assert after["swd_ratio_pre_ct"] != pytest.approx(1.0, abs=1e-6)
     assert after["consistency_short_pairs"] == 3 and after["consistency_short_rmse"] is not None
+    assert after["path_frames"] == 60 and after["path_short_rmse"] is not None and after["path_long_lpips"] > 0
     assert measure_stylizer(s, lpips=lpips, taps=taps, style_views=2) == after  # input_gaussians() is g
 
     # geometry optimised too: the stylized renders and depths come from the moved model, the original ones from the

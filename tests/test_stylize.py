@@ -63,6 +63,10 @@ def test_paper_schedule():
     assert schedule(cfg, "forward", 20) == (50, 2000) and schedule(cfg, "360", 201) == (15, 0)
     assert schedule(StylizeConfig(preset="quick"), "forward", 20) == (10, 400)
     assert schedule(StylizeConfig(preset="quick"), "360", 67) == (4, 0)
+    standard = StylizeConfig(preset="standard")  # the paper's iterations at a 512 px long side
+    assert schedule(standard, "forward", 20) == (50, 2000) and schedule(standard, "360", 67) == (20, 0)
+    assert (standard.render_max_side, StylizeConfig().render_max_side, StylizeConfig(preset="quick").render_max_side,
+            StylizeConfig(preset="standard", max_side=300).render_max_side) == (512, 1600, 256, 300)
     assert schedule(StylizeConfig(iters_per_view=7, min_total_iters=9), "360", 5) == (7, 9)
 
 

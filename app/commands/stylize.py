@@ -30,7 +30,8 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--style", required=True, help="the painting (any image OpenImageIO reads, at least 64 px)")
     p.add_argument("-o", "--output", required=True, help="output folder")
     p.add_argument("--preset", choices=D.PRESETS, default="paper",
-                   help=f"paper: the paper's schedule at up to {D.PAPER_MAX_SIDE} px; quick: {D.QUICK_MAX_SIDE} px "
+                   help=f"paper: the paper's schedule at up to {D.PAPER_MAX_SIDE} px; standard: the same iterations "
+                        f"at {D.STANDARD_MAX_SIDE} px; quick: {D.QUICK_MAX_SIDE} px "
                         f"renders, {D.QUICK_ITER_FRACTION:g} of the iterations, for CPUs (default: paper)")
     p.add_argument("--loss", choices=D.LOSSES, default="ccft", help="style loss (default: ccft)")
     p.add_argument("--tau", type=float, default=D.TAU, help=f"CCFT column capacity strength (default {D.TAU})")

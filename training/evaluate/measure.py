@@ -11,16 +11,25 @@ Keys of the dict (None where a metric does not apply):
   ``consistency_long_*`` the same for views ``long_gap`` (7) apart, None (pairs 0) when the order has no such pair;
 - ``gram_relu1`` .. ``gram_relu4``, ``swd_relu1`` .. ``swd_relu4``: style distances of the stylized renders to the
   painting (style_metrics.py), mean over ``style_views`` (8) views evenly spaced over the cameras;
-- ``gram_ratio_pre_ct``, ``swd_ratio_pre_ct``: mean over the four layers of (distance of the stylized renders) /
-  (distance of the unstylized renders after the pre colour transfer), i.e. where the stylizer started; below 1
-  means closer to the painting than the start. Without colour transfer (``original_pre_ct`` None) the start is the
-  original itself and these equal the ``*_ratio_original`` values;
-- ``gram_ratio_original``, ``swd_ratio_original``: the same against the original renders (before any colour
-  transfer);
+- ``gram_ratio_original``, ``swd_ratio_original``: mean over the four layers of (distance of the stylized renders) /
+  (distance of the original renders, before any colour transfer): the share of the original's distance to the
+  painting that is left; below 1 means closer to the painting than the input;
+- ``gram_ratio_pre_ct``, ``swd_ratio_pre_ct``: that share for the stylized renders over the same share for the
+  unstylized renders after the pre colour transfer (where the stylizer started); below 1 means closer to the
+  painting than the start. A ratio of layer means, not a mean of layer ratios: the colour transfer can bring a
+  low layer's distance near 0 (on the flower relu1's Gram distance to a tenth of the original's), and a mean of
+  per-layer ratios to that start is then one small absolute change divided by almost nothing (docs/evaluation.md,
+  "The flower"). Without colour transfer (``original_pre_ct`` None) the start is the original itself and these
+  equal the ``*_ratio_original`` values;
+- ``gram_ratio_pre_ct_relu1`` .. ``_relu4``, ``swd_ratio_pre_ct_relu1`` .. ``_relu4``: the per-layer ratios,
+  stylized over the pre-colour-transfer start;
 - ``structure_distance``: self-similarity structure distance stylized vs original (content_metrics.py), mean over
   the style views;
 - ``luminance_psnr``: blurred-luminance PSNR stylized vs original in dB, mean over the style views (inf only for
-  identical images).
+  identical images);
+- ``path_short_rmse``, ``path_short_lpips``, ``path_short_valid``, ``path_long_*``, ``path_frames``: the stylization
+  papers' protocol, frames 1 and 7 apart on a smooth camera path through the cameras (path_consistency.py); only
+  ``measure_stylizer`` has a model to render the path with (None from ``measure_images``).
 
 Cost, measured on this machine's 2 CPU cores (torch on 2 threads, OMP_WAIT_POLICY=PASSIVE as ``training`` sets it,
 other jobs running: load average about 3) for 20 views at 256 x 192 with the defaults: ``measure_images`` about
@@ -40,12 +49,14 @@ import torch
 
 from training.evaluate.consistency import consistency_metrics
 from training.evaluate.content_metrics import blurred_luminance_psnr, structure_distance
+from training.evaluate.path_consistency import path_consistency
 from training.evaluate.style_metrics import mean_style_distances, painting_for, style_distances, taps_stats
 from training.evaluate.vgg_taps import LAYERS, VGGTaps
 
 # Bumped whenever a change alters a metric's value: reports carry it, and `splatstyler eval` measures again the
 # cells whose metrics came from another version (from their saved models, without stylizing again).
-METRICS_VERSION = 2  # 2: consistency pairs follow the cameras' nearest path, not the stylization's trajectory
+METRICS_VERSION = 3  # 2: consistency pairs follow the cameras' nearest path, not the stylization's trajectory;
+# 3: the path protocol (path_*) added, and the style ratios are ratios of the mean over the layers (issue 22)
 SHORT_GAP = 1
 LONG_GAP = 7
 STYLE_VIEWS = 8  # views the style and content metrics look at (evenly spaced over the cameras)
@@ -60,9 +71,16 @@ def style_view_indices(n: int, count: int | None = STYLE_VIEWS) -> list[int]:
     return sorted({int(i) for i in np.linspace(0, n - 1, count).round()})
 
 
-def _ratio(num: dict, den: dict, kind: str) -> float | None:
+def _share(num: dict, den: dict, kind: str) -> float | None:
+    """Mean over the layers of num's distance / den's distance (layers where den's is 0 left out)."""
     values = [num[f"{kind}_{layer}"] / den[f"{kind}_{layer}"] for layer in LAYERS if den[f"{kind}_{layer}"] > 0]
     return float(np.mean(values)) if values else None
+
+
+def _ratio_to_start(styl: dict, start: dict, orig: dict, kind: str) -> float | None:
+    """(share of the original's distance left in ``styl``) / (share left in ``start``); see the module docstring."""
+    left, start_left = _share(styl, orig, kind), _share(start, orig, kind)
+    return left / start_left if left is not None and start_left else None
 
 
 def measure_images(stylized: Sequence[np.ndarray], depths: Sequence[np.ndarray], alphas: Sequence[np.ndarray],
@@ -84,10 +102,7 @@ def measure_images(stylized: Sequence[np.ndarray], depths: Sequence[np.ndarray],
             raise ValueError(f"{name} has {len(seq)} entries for {n} cameras")
     if original_pre_ct is not None and len(original_pre_ct) != n:
         raise ValueError(f"original_pre_ct has {len(original_pre_ct)} entries for {n} cameras")
-    if lpips is None:
-        from training.reconstruct.lpips import LPIPS
-
-        lpips = LPIPS()
+    lpips = _default_lpips(lpips)
     if taps is None:
         taps = VGGTaps(lpips.weights)
 
@@ -126,11 +141,27 @@ def measure_images(stylized: Sequence[np.ndarray], depths: Sequence[np.ndarray],
         for layer in LAYERS:
             out[f"{kind}_{layer}"] = styl[f"{kind}_{layer}"]
     for kind in ("gram", "swd"):
-        out[f"{kind}_ratio_pre_ct"] = _ratio(styl, pre, kind)
-        out[f"{kind}_ratio_original"] = _ratio(styl, orig, kind)
+        out[f"{kind}_ratio_pre_ct"] = _ratio_to_start(styl, pre, orig, kind)
+        out[f"{kind}_ratio_original"] = _share(styl, orig, kind)
+        for layer in LAYERS:
+            key = f"{kind}_{layer}"
+            out[f"{kind}_ratio_pre_ct_{layer}"] = styl[key] / pre[key] if pre[key] > 0 else None
     out["structure_distance"] = float(np.mean(structure))
     out["luminance_psnr"] = float(np.mean(psnr))
+    out.update({key: None for key in PATH_KEYS})
     return out
+
+
+PATH_KEYS = ("path_short_rmse", "path_short_lpips", "path_short_valid", "path_long_rmse", "path_long_lpips",
+             "path_long_valid", "path_frames")
+
+
+def render_with_depth(gaussians, cameras, background=(0.0, 0.0, 0.0), backend: str = "auto", device="cpu",
+                      cancel=None) -> tuple[list[np.ndarray], list[np.ndarray], list[np.ndarray]]:
+    """(images (H, W, 3) in [0, 1], expected depths (H, W, 1), alphas (H, W, 1)) of a model at ``cameras``."""
+    renders = _render_all(gaussians, gaussians.sh, cameras, background, backend, device, mode="RGB+ED",
+                          cancel=cancel)
+    return [img[..., :3] for img, _ in renders], [img[..., 3:] for img, _ in renders], [a for _, a in renders]
 
 
 def _render_all(gaussians, sh, cameras, background, backend, device, mode: str, cancel=None):
@@ -209,6 +240,7 @@ def measure_stylizer(stylizer, lpips=None, taps: VGGTaps | None = None, original
         return full
 
     styl = _render_all(g, g.sh, cameras, *args, mode="RGB+ED", cancel=cancel)
+    lpips = _default_lpips(lpips)
     orig = spread(_render_all(orig_model, orig_model.sh, few, *args, mode="RGB", cancel=cancel))
     pre = None
     if stylizer.pre_transform is not None:
@@ -216,10 +248,23 @@ def measure_stylizer(stylizer, lpips=None, taps: VGGTaps | None = None, original
         moved = keep_unselected(apply_to_gaussians(orig_model, stylizer.pre_transform), orig_model,
                                 None if mask is None else torch.from_numpy(mask))
         pre = spread(_render_all(moved, moved.sh, few, *args, mode="RGB", cancel=cancel))
-    return measure_images([img[..., :3] for img, _ in styl], [img[..., 3:] for img, _ in styl],
-                          [a for _, a in styl], orig, pre, cameras, measure_order(stylizer), stylizer.style_image,
-                          lpips=lpips, taps=taps, long_gap=long_gap, style_views=style_views, max_pairs=max_pairs,
-                          lpips_pairs=lpips_pairs)
+    order = measure_order(stylizer)
+    out = measure_images([img[..., :3] for img, _ in styl], [img[..., 3:] for img, _ in styl],
+                         [a for _, a in styl], orig, pre, cameras, order, stylizer.style_image,
+                         lpips=lpips, taps=taps, long_gap=long_gap, style_views=style_views, max_pairs=max_pairs,
+                         lpips_pairs=lpips_pairs)
+    if len(cameras) >= 2:
+        out.update(path_consistency(lambda path: render_with_depth(g, path, *args, cancel=cancel), cameras, order,
+                                    lpips, long_gap=long_gap, lpips_pairs=lpips_pairs))
+    return out
+
+
+def _default_lpips(lpips):
+    if lpips is None:
+        from training.reconstruct.lpips import LPIPS
+
+        lpips = LPIPS()
+    return lpips
 
 
 def _fmt(value, spec: str) -> str:
@@ -239,5 +284,8 @@ def summary_line(metrics: dict) -> str:
             f"{_fmt(m.get('consistency_long_rmse'), '.3f')} long "
             f"(LPIPS {_fmt(m.get('consistency_short_lpips'), '.3f')} / "
             f"{_fmt(m.get('consistency_long_lpips'), '.3f')}); "
-            f"structure distance {_fmt(m.get('structure_distance'), '.3f')}; "
-            f"blurred-luminance PSNR {_fmt(m.get('luminance_psnr'), '.1f')} dB")
+            + (f"path protocol RMSE {_fmt(m.get('path_short_rmse'), '.3f')} / "
+               f"{_fmt(m.get('path_long_rmse'), '.3f')} (LPIPS {_fmt(m.get('path_short_lpips'), '.3f')} / "
+               f"{_fmt(m.get('path_long_lpips'), '.3f')}); " if m.get("path_short_rmse") is not None else "")
+            + f"structure distance {_fmt(m.get('structure_distance'), '.3f')}; "
+            + f"blurred-luminance PSNR {_fmt(m.get('luminance_psnr'), '.1f')} dB")

@@ -9,7 +9,8 @@ from training.scene.scene import Camera
 from training.stylize import defaults as D
 from training.stylize.defaults import (FORWARD_ITERS_PER_VIEW, FORWARD_MIN_TOTAL, LOSSES, ORBIT_ITERS_PER_VIEW,
                                        ORBIT_ITERS_PER_VIEW_MANY, ORBIT_MANY_VIEWS, PAPER_MAX_SIDE, PARAMS, PRESETS,
-                                       QUICK_ITER_FRACTION, QUICK_MAX_SIDE, SCENE_KINDS, VIEW_ORDERS)
+                                       QUICK_ITER_FRACTION, QUICK_MAX_SIDE, SCENE_KINDS, STANDARD_MAX_SIDE,
+                                       VIEW_ORDERS)
 
 DEFAULT_LAMBDA_STYLE = D.LAMBDA_STYLE
 DEFAULT_LR = D.LR
@@ -44,7 +45,7 @@ class StylizeConfig:
     virtual_views: int = 0
     dc_only: bool = False  # keep shN at its initial values (frozen): the stylization is view-independent
     params: str = "colour"  # colour: SH colours only (the paper) | all: geometry too (the paper's ablation)
-    preset: str = "paper"  # paper | quick
+    preset: str = "paper"  # paper | standard (the paper's iterations at 512 px) | quick
     max_side: int | None = None  # long side of the renders; None: the preset's
     color_transfer: bool = True  # ARF's linear colour transfer before and after
     backend: str = "auto"  # rasterizer backend
@@ -90,7 +91,7 @@ class StylizeConfig:
     def render_max_side(self) -> int:
         if self.max_side is not None:
             return int(self.max_side)
-        return QUICK_MAX_SIDE if self.preset == "quick" else PAPER_MAX_SIDE
+        return {"quick": QUICK_MAX_SIDE, "standard": STANDARD_MAX_SIDE}.get(self.preset, PAPER_MAX_SIDE)
 
 
 def paper_schedule(kind: str, num_views: int) -> tuple[int, int]:
