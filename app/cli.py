@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import argparse
 import importlib
+import re
 import sys
 
 # Order here is the order in `splatstyler --help`.
@@ -46,16 +47,35 @@ def build_parser() -> argparse.ArgumentParser:
     return parser
 
 
+# Options whose value is a comma list of numbers: "-0.18,..." after one of them is its value, which argparse would
+# otherwise take for an option (negative coordinates are the common case for a crop box).
+NUMBER_LIST_OPTIONS = ("--box", "--sphere", "--background")
+
+
+def join_negative_values(argv: list[str]) -> list[str]:
+    """["--box", "-1,0,0,1,1,1"] -> ["--box=-1,0,0,1,1,1"]."""
+    out: list[str] = []
+    i = 0
+    while i < len(argv):
+        if argv[i] in NUMBER_LIST_OPTIONS and i + 1 < len(argv) and re.match(r"^-[\d.]", argv[i + 1]):
+            out.append(f"{argv[i]}={argv[i + 1]}")
+            i += 2
+        else:
+            out.append(argv[i])
+            i += 1
+    return out
+
+
 def main(argv: list[str] | None = None) -> int:
     parser = build_parser()
-    args = parser.parse_args(argv)
+    args = parser.parse_args(join_negative_values(sys.argv[1:] if argv is None else list(argv)))
     if not getattr(args, "func", None):
         parser.print_help()
         return 2
     from app import stop_signals
     from training.core.errors import InputError
 
-    stop_signals.install()
+    restore_signals = stop_signals.install()
     try:
         return int(args.func(args) or 0)
     except KeyboardInterrupt:
@@ -71,6 +91,8 @@ def main(argv: list[str] | None = None) -> int:
             raise
         print(f"splatstyler: error: {type(exc).__name__}: {exc} (run with --debug for the traceback)", file=sys.stderr)
         return 1
+    finally:
+        restore_signals()
 
 
 if __name__ == "__main__":

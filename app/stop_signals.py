@@ -15,11 +15,19 @@ import signal
 _received: list[int] = []
 
 
-def install() -> None:
+def install():
+    """Put the handlers in; returns a function that puts back the ones found (main() calls it on its way out, so
+    a caller in the same process, a test, keeps its own)."""
     import pycolmap  # noqa: F401  (its glog handler must go in before ours, not after)
 
-    signal.signal(signal.SIGTERM, _stop)
-    signal.signal(signal.SIGINT, _stop)
+    _received.clear()
+    previous = {sig: signal.signal(sig, _stop) for sig in (signal.SIGTERM, signal.SIGINT)}
+
+    def restore() -> None:
+        for sig, handler in previous.items():
+            signal.signal(sig, handler)
+
+    return restore
 
 
 def _stop(signum, _frame) -> None:

@@ -1,1 +1,2 @@
-"""Assets that ship with the app: shaders, fonts, and the code that generates the demo scene and painting."""
+"""The demo's assets: the code that generates its scene and painting (``assets/demo``). The shaders live with the
+renderer (``renderer_gl/shaders``); the viewer's fonts are imgui-bundle's own."""

@@ -62,3 +62,18 @@ def test_crop_errors_are_one_line(tmp_path, capsys):
         assert len(err) == 1 and words in err[0], err
     assert main(["crop", str(src), "--box", "0,0,0,1,1,1", "-o", str(tmp_path / "x.obj")]) == 2
     assert not (tmp_path / "x.ply").exists()
+
+
+def test_negative_coordinates_after_a_space_are_the_options_value(tmp_path, capsys):
+    """The README's form, --box X0,... with a space, where X0 is negative: argparse alone takes '-0.5,...' for an
+    option ("expected one argument"); every comma-list option accepts it."""
+    g = model()
+    src = tmp_path / "m.ply"
+    write_ply(src, g)
+    assert main(["crop", str(src), "--box", "-0.5,-1,-2,1,0.5,2", "-o", str(tmp_path / "in.ply")]) == 0
+    inside = ((g.means >= torch.tensor([-0.5, -1.0, -2.0])) & (g.means <= torch.tensor([1.0, 0.5, 2.0]))).all(1)
+    assert f"kept {int(inside.sum())} of 400" in capsys.readouterr().out
+    assert main(["crop", str(src), "--sphere", "-0.2,0.1,-0.3,1.5", "-o", str(tmp_path / "s.ply")]) == 0
+    centre = torch.tensor([-0.2, 0.1, -0.3])
+    kept = int(((g.means - centre).norm(dim=1) <= 1.5).sum())
+    assert f"kept {kept} of 400" in capsys.readouterr().out

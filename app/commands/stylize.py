@@ -29,10 +29,11 @@ def register(sub: argparse._SubParsersAction) -> None:
                                                  "transforms.json)")
     p.add_argument("--style", required=True, help="the painting (any image OpenImageIO reads, at least 64 px)")
     p.add_argument("-o", "--output", required=True, help="output folder")
-    p.add_argument("--preset", choices=D.PRESETS, default="paper",
+    p.add_argument("--preset", choices=D.PRESETS, default=None,
                    help=f"paper: the paper's schedule at up to {D.PAPER_MAX_SIDE} px; standard: the same iterations "
                         f"at {D.STANDARD_MAX_SIDE} px; quick: {D.QUICK_MAX_SIDE} px "
-                        f"renders, {D.QUICK_ITER_FRACTION:g} of the iterations, for CPUs (default: paper)")
+                        f"renders, {D.QUICK_ITER_FRACTION:g} of the iterations, for CPUs (default: by device: paper "
+                        f"where the stylization runs on CUDA, quick on a CPU, where paper takes hours)")
     p.add_argument("--loss", choices=D.LOSSES, default="ccft", help="style loss (default: ccft)")
     p.add_argument("--tau", type=float, default=D.TAU, help=f"CCFT column capacity strength (default {D.TAU})")
     p.add_argument("--k", type=int, default=D.K, help=f"CCFT nearest style features per rendered feature ({D.K})")
@@ -97,7 +98,8 @@ def config_from_args(args: argparse.Namespace):
         sinkhorn_iters=args.sinkhorn_iters, lambda_style=args.lambda_style, lambda_content=args.lambda_content,
         lr=args.lr, iters_per_view=args.iters_per_view, min_total_iters=args.min_total_iters,
         scene_kind=args.scene_kind, view_order=args.view_order, seed=args.seed, virtual_views=args.virtual_views,
-        dc_only=args.dc_only, params=args.params, preset=args.preset, max_side=args.max_side,
+        dc_only=args.dc_only, params=args.params, preset=args.preset or default_preset(args.device),
+        max_side=args.max_side,
         color_transfer=not args.no_color_transfer, backend=args.backend, device=args.device)
     try:
         config.validate()
@@ -121,6 +123,15 @@ class Measure:
         from training.evaluate.measure import measure_stylizer
 
         return measure_stylizer(stylizer, original=stylizer.input_gaussians(), max_pairs=self.max_pairs)
+
+
+def default_preset(device: str) -> str:
+    """paper on CUDA, quick on a CPU (the paper's schedule at full size takes hours there)."""
+    if device == "cpu":
+        return "quick"
+    import torch
+
+    return "paper" if device == "cuda" or torch.cuda.is_available() else "quick"
 
 
 def run(args: argparse.Namespace) -> int:
