@@ -128,3 +128,24 @@ def test_photos_are_staged_upright_and_shrunk(tmp_path):
     assert np.abs(upright - read_image(tmp_path / "phone.jpg")).mean() < 0.05
     assert read_image(staged / "big.png").shape == (33, 50, 3)  # long side shrunk to --max-size
     assert (staged / "small.png").read_bytes() == (tmp_path / "small.png").read_bytes()  # untouched: copied
+
+
+@pytest.mark.slow
+@pytest.mark.skipif(not FERN.is_dir(), reason="shared llff_fern photos not available (../shared)")
+def test_sfm_that_places_under_half_the_photos_fails_unless_partial_is_allowed(tmp_path):
+    """Four fern views among five paintings that overlap nothing: a model of four photos is written, but sfm says
+    in one line that it failed (registered/total, points, the photos left out) and exits 1; --allow-partial
+    keeps it with exit 0."""
+    styles = REPO.parent / "shared" / "data" / "styles"
+    photos = tmp_path / "photos"
+    for p in sorted(FERN.iterdir())[:4] + sorted(styles.glob("*.jpg"))[:5]:
+        img = read_image(p)
+        h, w = img.shape[:2]
+        write_image(photos / f"{p.parent.name}_{p.stem}.png", resize_image(img, 320, max(1, round(h * 320 / w))))
+    failed = _cli("sfm", str(photos), "-o", str(tmp_path / "data"), "--max-features", "1024")
+    assert failed.returncode == 1, failed.stderr
+    line = [s for s in failed.stderr.splitlines() if s.startswith("splatstyler: error")]
+    assert len(line) == 1 and "SfM failed: registered" in line[0] and "/9 photos" in line[0], failed.stderr
+    assert "styles_" in line[0]  # the photos left out are named
+    partial = _cli("sfm", str(photos), "-o", str(tmp_path / "data2"), "--max-features", "1024", "--allow-partial")
+    assert partial.returncode == 0, partial.stderr

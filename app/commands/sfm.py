@@ -32,7 +32,17 @@ def register(sub: argparse._SubParsersAction) -> None:
                         help="let bundle adjustment move the principal point off the image centre (better "
                              "rotations when the true one is off centre; needs many photos to be stable)")
     parser.add_argument("--verbose", action="store_true", help="show COLMAP's own log lines")
+    parser.add_argument("--allow-partial", action="store_true",
+                        help=f"keep a model that placed fewer than half the photos or has fewer than "
+                             f"{MIN_POINTS} points (by default that is a failure: exit 1)")
     parser.set_defaults(func=run)
+
+
+# Fewer points than this is not a scene to reconstruct: the depth regularizer aligns each view's depth to the SfM
+# points it sees and needs at least 10 of them in a view (training/reconstruct/depth_targets.py), and the Gaussians
+# start from the points, where the presets' own random start uses 5000 or more; a hundred points spread over a
+# capture leave most views under that 10.
+MIN_POINTS = 100
 
 
 def run(args: argparse.Namespace) -> int:
@@ -54,4 +64,12 @@ def run(args: argparse.Namespace) -> int:
     if result.unregistered:
         print(f"note: {len(result.unregistered)} photos could not be placed and are left out: "
               f"{name_list(result.unregistered)}", file=sys.stderr)
+    too_few_photos = 2 * result.num_registered < result.num_photos
+    if (too_few_photos or result.num_points < MIN_POINTS) and not args.allow_partial:
+        left_out = result.unregistered + result.no_overlap
+        print(f"splatstyler: error: {args.photos}: SfM failed: registered {result.num_registered}/"
+              f"{result.num_photos} photos, {result.num_points} points (needs at least half the photos and "
+              f"{MIN_POINTS} points); left out: {name_list(left_out) if left_out else 'none'} "
+              f"(--allow-partial keeps this model)", file=sys.stderr)
+        return 1
     return 0
