@@ -7,6 +7,7 @@ Everything goes to a temporary name in the target's folder and is renamed over t
 from __future__ import annotations
 
 import contextlib
+import errno
 import os
 import tempfile
 from pathlib import Path
@@ -48,6 +49,21 @@ def make_output_dir(path: str | Path, what: str = "output folder") -> Path:
     return path
 
 
+def _disk_full(exc: BaseException, folder: Path) -> bool:
+    """ENOSPC; or a writer that says it in its own words, or not at all (torch.save reports "iostream error"),
+    while the filesystem has less than 1 MiB left."""
+    if isinstance(exc, OSError) and exc.errno in (errno.ENOSPC, errno.EDQUOT):
+        return True
+    text = str(exc).lower()
+    if "no space left" in text or "disk quota" in text:
+        return True
+    try:
+        st = os.statvfs(folder)
+    except OSError:
+        return False
+    return st.f_bavail * st.f_frsize < (1 << 20)
+
+
 @contextlib.contextmanager
 def atomic_path(path: str | Path) -> Iterator[Path]:
     """Yield a temporary path beside ``path``; on success it is renamed to ``path``, on error it is removed.
@@ -65,7 +81,13 @@ def atomic_path(path: str | Path) -> Iterator[Path]:
     os.close(fd)
     tmp_path = Path(tmp)
     try:
-        yield tmp_path
+        try:
+            yield tmp_path
+        except (OSError, RuntimeError) as exc:
+            if not _disk_full(exc, path.parent):
+                raise
+            raise InputError(path, "no space left on the device; nothing was written under this name (an "
+                                   "earlier file there is unchanged)") from None
         # mkstemp creates the file 0600; outputs should get the mode a plain open() would give.
         umask = os.umask(0)
         os.umask(umask)

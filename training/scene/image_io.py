@@ -205,7 +205,14 @@ def write_image(path: str | Path, array: np.ndarray, dtype: str | None = None, q
         try:
             if not out.open(str(tmp), spec):
                 raise OSError(f"{path}: cannot write image ({_one_line(out.geterror())})")
-            if not out.write_image(np.ascontiguousarray(array)):
-                raise OSError(f"{path}: cannot write image ({_one_line(out.geterror())})")
-        finally:
+            written = out.write_image(np.ascontiguousarray(array))
+            # OpenImageIO reports a short write (a full disk) in its error text while returning success
+            error = out.geterror()
+            if not written or error:
+                raise OSError(f"{path}: cannot write image ({_one_line(error)})")
+        except BaseException:
             out.close()
+            raise
+        # some formats write at close (a full disk shows there): a failed close must not be renamed into place
+        if not out.close():
+            raise OSError(f"{path}: cannot write image ({_one_line(out.geterror())})")
