@@ -1,5 +1,5 @@
 #!/usr/bin/env bash
-# One-step set-up and run for a fresh Linux machine (Python >= 3.10 with venv):
+# One-step set-up and run for a fresh Linux machine (Python >= 3.11 with venv):
 #   bash scripts/run.sh demo [demo options]   set up .venv, then run `splatstyler demo`
 #   bash scripts/run.sh test [pytest options] set up .venv with the test extra, then run the whole test suite
 # Set-up is idempotent: a second run reuses .venv and only installs what is missing.

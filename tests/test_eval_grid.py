@@ -155,3 +155,42 @@ def test_a_record_made_with_other_settings_is_not_done(tmp_path, demo):
     changed = load_grid(path)
     assert not is_done(record, changed.cells[1])  # the grid file changed this cell: it runs again
     assert not is_done({**record, "status": "failed"}, job)
+
+
+@pytest.mark.slow
+def test_a_grid_killed_with_sigkill_resumes_losing_only_the_running_job(tmp_path, demo):
+    """SIGKILL to the whole grid (parent and workers: no handler runs) once the reconstruction is recorded: the run
+    after it keeps that job, runs the rest, and finishes."""
+    import os
+    import signal
+    import time
+
+    grid = write_grid(tmp_path, demo)
+    out = tmp_path / "out"
+    proc = subprocess.Popen([sys.executable, "-m", "app", "eval", str(grid), "-o", str(out), "--workers", "1",
+                             "--threads", "1"], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+                            start_new_session=True)
+    try:
+        t0 = time.time()
+        while time.time() - t0 < 600 and proc.poll() is None:
+            done = [p for p in (out / "jobs").rglob("*.json")
+                    if json.loads(p.read_text()).get("status") == "ok"] if (out / "jobs").is_dir() else []
+            if done:
+                break
+            time.sleep(0.5)
+        assert proc.poll() is None, "the grid ended before it could be killed"
+        os.killpg(proc.pid, signal.SIGKILL)
+        proc.wait(timeout=60)
+    finally:
+        if proc.poll() is None:
+            os.killpg(proc.pid, signal.SIGKILL)
+    kept = {p: p.read_text() for p in done}
+    assert len(kept) == 1
+    again = run_eval(str(grid), "-o", str(out), "--workers", "1", "--threads", "1")
+    assert again.returncode == 0, again.stdout[-3000:] + again.stderr[-3000:]
+    assert "(1 already done)" in again.stdout, again.stdout
+    for path, text in kept.items():
+        assert path.read_text() == text  # the recorded job was not run again
+    for setting in ("ccft", "nnfm"):
+        rec = json.loads((out / "jobs" / "cell" / "demo" / setting / "strokes" / "seed0.json").read_text())
+        assert rec["status"] == "ok"
