@@ -422,7 +422,7 @@ class ViewerApp(RunsMixin):
                     self.say("the trainer changed its Gaussians: the selection was cleared")
                 elif editing_live:
                     self.editor.model = snap  # positions move while reconstructing: select where they are now
-                if editing_live:
+                if editing_live and len(snap) == self.editor.count:  # not while a deletion is on its way
                     self.view.renderer.set_flags(self.editor.flags(), 0)
                 if self.view.camera is None:
                     self._place_camera()
