@@ -139,12 +139,19 @@ def runner_params(app):
     frame_start = params.callbacks.post_new_frame
 
     def post_new_frame():
-        while gl_calls:
-            fn, box = gl_calls.pop(0)
-            try:
-                box["value"] = fn()
-            except BaseException as exc:  # noqa: BLE001  (raised again in the test's thread)
-                box["error"] = exc
+        if gl_calls:
+            import moderngl
+
+            # the frame's framebuffer: a call that binds another (an offscreen render) must not leave it bound, or
+            # the window would be drawn into that one from then on
+            bound = moderngl.get_context().detect_framebuffer()
+            while gl_calls:
+                fn, box = gl_calls.pop(0)
+                try:
+                    box["value"] = fn()
+                except BaseException as exc:  # noqa: BLE001  (raised again in the test's thread)
+                    box["error"] = exc
+            bound.use()
         frame_start()
 
     params.callbacks.post_new_frame = post_new_frame

@@ -14,7 +14,7 @@ from imgui_bundle import imgui
 from app.viewer import world_edit as we
 
 GREY = imgui.ImVec4(0.6, 0.6, 0.6, 1.0)
-LINE = imgui.IM_COL32(60, 230, 255, 255)  # cyan: apart from the selection's orange and the frustums' yellow
+LINE = imgui.IM_COL32(120, 255, 60, 255)  # green: apart from selection, frustums and paths (orange, yellow, cyan)
 HINTS = {"measure": "click two points on the model", "floor": "click three points on the floor",
          "fit": "click a point on the floor"}
 
@@ -135,7 +135,9 @@ def measure_panel(app) -> None:
     world = we.world_of(app)
     if not np.array_equal(world, np.eye(4)):
         s = float(np.cbrt(np.linalg.det(world[:3, :3])))
-        imgui.text_colored(GREY, f"scene scaled by {s:.6g} and turned; Ctrl+Z undoes")
+        turned = not np.allclose(world[:3, :3] / s, np.eye(3), atol=1e-12)
+        what = [f"scaled by {s:.6g}"] * (s != 1.0) + ["turned"] * turned
+        imgui.text_colored(GREY, f"the scene is {' and '.join(what) or 'moved'} (Ctrl+Z undoes)")
         imgui.begin_disabled(bool(why))
         if imgui.button("Back to the file's frame"):
             app.guarded("reset", we.set_world, app, np.eye(4))
