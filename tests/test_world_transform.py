@@ -157,3 +157,53 @@ def test_export_of_a_rescaled_levelled_project_is_the_file_moved_by_the_world(tm
     apply_project(again, path)
     assert np.array_equal(world_of(again), world)
     assert np.allclose(again.editor.model.means, app.editor.model.means, atol=1e-6)
+
+
+def floor_scene(tmp_path):
+    """A tilted floor of Gaussians with a box standing on it (on the floor's upper side): a viewer session."""
+    rng = np.random.default_rng(3)
+    normal = np.array([0.3, -0.9, 0.3]) / np.linalg.norm([0.3, -0.9, 0.3])  # up-ish, tilted
+    a = np.cross(normal, [1.0, 0.0, 0.0])
+    a /= np.linalg.norm(a)
+    b = np.cross(normal, a)
+    uv = rng.uniform(-2, 2, size=(300, 2))
+    floor = uv[:, :1] * a + uv[:, 1:] * b
+    box = rng.uniform(-0.3, 0.3, size=(60, 3)) + normal * 1.0
+    g = model(n=360, degree=1)
+    g.means = torch.from_numpy(np.concatenate([floor, box])).float()
+    write_ply(tmp_path / "floor.ply", g)
+    app = ViewerApp(Paths(out=str(tmp_path / "out")))
+    app.open_model(str(tmp_path / "floor.ply"))
+    from app.viewer.world_edit import sync_world
+
+    sync_world(app)  # what each frame does first
+    return app, floor
+
+
+def test_fit_the_floor_levels_the_plane_of_the_gaussians_around_the_point(tmp_path):
+    from app.viewer.world_edit import add_point, level_from_fit
+
+    app, floor = floor_scene(tmp_path)
+    app.world.tool, app.world.fit_radius = "fit", 1.0
+    add_point(app, floor[0])
+    level_from_fit(app)
+    means = app.editor.model.means.astype(np.float64)
+    assert np.ptp(means[:300, 1]) < 1e-5  # the floor is level: one height
+    assert means[300:, 1].max() < means[:300, 1].min()  # the box stands above it (up is -y)
+    app.world.fit_radius = 1e-6
+    with pytest.raises(ValueError, match="Gaussians within"):
+        level_from_fit(app)
+
+
+def test_pick_the_floor_levels_the_plane_through_three_points(tmp_path):
+    from app.viewer.world_edit import add_point, level_from_floor
+
+    app, floor = floor_scene(tmp_path)
+    app.world.tool = "floor"
+    for i in (0, 1, 2):
+        add_point(app, floor[i])
+    level_from_floor(app)
+    means = app.editor.model.means.astype(np.float64)
+    assert np.ptp(means[:300, 1]) < 1e-5 and means[300:, 1].max() < means[:300, 1].min()
+    add_point(app, floor[3])  # a fourth click starts the next floor
+    assert len(app.world.points) == 1
