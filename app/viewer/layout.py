@@ -54,7 +54,8 @@ def dockable_windows(app) -> list:
     view.include_in_view_menu = False
     return [view,
             window("Scene", LEFT, scene_panel), window("Edit", LEFT, edit_panel),
-            window("Scale and up", LEFT, measure_panel), window("Camera path", LEFT, path_panel), window("Messages", LEFT_BOTTOM, messages_panel),
+            window("Scale and up", LEFT, measure_panel),  # the measure and up tools
+            window("Camera path", LEFT, path_panel), window("Messages", LEFT_BOTTOM, messages_panel),
             window("Training", RIGHT, training_panel), window("Style", RIGHT, style_panel),
             window("View order", RIGHT_BOTTOM, view_order_panel)]
 
