@@ -115,8 +115,13 @@ def test_rescale_moves_model_and_cameras_by_the_ratio_and_undo_restores_them_bit
     for a, b in zip(app.scene.cameras, cams):
         assert np.allclose(a.center, b.center * factor, rtol=1e-12)
     assert np.isclose(np.linalg.norm(app.world.points[1] - app.world.points[0]), 3.0)
+    from app.viewer.world_edit import in_file_frame, scene_up
+
+    assert scene_up(app) is None  # scaled, not turned: the cameras still say where up is
+    assert np.allclose(in_file_frame(app, app.editor.model).means, before.means, atol=1e-6)  # what a run starts from
     level_from_cameras(app)
     assert np.allclose(cameras_up(app.scene.cameras), VIEWER_UP, atol=1e-9)
+    assert np.array_equal(scene_up(app), VIEWER_UP)
     assert len(app.editor.undo_stack) == 2
     app.editor.undo()
     app.editor.undo()

@@ -328,7 +328,9 @@ class ViewerApp(RunsMixin):
         from app.viewer.camera_control import ViewerCamera
 
         if self.scene.cameras:
-            self.view.camera = ViewerCamera.from_dataset(self.scene.cameras)
+            from app.viewer.world_edit import scene_up
+
+            self.view.camera = ViewerCamera.from_dataset(self.scene.cameras, up=scene_up(self))  # levelled: -y
             self.view.moved()
             self.update_overlays()
         elif self.static_model is not None:

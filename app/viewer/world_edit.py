@@ -221,6 +221,21 @@ def open_with_world(app, world) -> None:
     ed.version += 1
 
 
+def in_file_frame(app, snap):
+    """The editor's model snapshot moved back to the file's frame (where a trainer works), or as it is."""
+    world = world_of(app)
+    if snap is None or np.array_equal(world, np.eye(4)):
+        return snap
+    return transform_snapshot(snap, np.linalg.inv(world), version=snap.version + 1_000_000)
+
+
+def scene_up(app) -> np.ndarray | None:
+    """The viewer's up once the up tools turned the scene (None: the dataset cameras' mean up, as before)."""
+    world = _shown_world(app)
+    s = float(np.cbrt(np.linalg.det(world[:3, :3])))
+    return None if np.allclose(world[:3, :3] / s, np.eye(3), atol=1e-12) else VIEWER_UP.copy()
+
+
 def with_world(app, gaussians):
     """An export of the opened model as the view shows it: with the scene's world transform."""
     from training.model.transform import transform_gaussians
