@@ -4,6 +4,10 @@ Opens a window with the model (a 3DGS PLY or .splat), the dataset's cameras and 
 reconstruction or a stylization runs live beside the view, with sliders for the stylization's settings.
 ``--run`` starts one at once. Closing the window (or Ctrl-C) stops the trainer and saves: a reconstruction's
 checkpoint and PLY, a stylization's current model, under the output folder.
+
+The "Scale and up" panel gives the scene its real size (two points picked on the model, a known length typed) and
+its up axis (a picked floor, a plane fitted around a picked point, or the dataset cameras' mean up); both move the
+model and the cameras, undo with Ctrl+Z, are saved in the project and applied by ``export --project``.
 """
 
 from __future__ import annotations
