@@ -76,7 +76,10 @@ def write(app) -> None:
     two steps (a consistent model, never one half-way through a step or an edit); the line comes back later."""
     from training.model.export import human_size, write_export
 
+    from app.viewer.colour_view import export_baker
+
     st = replace(app.export)  # the settings as they are now: the write may run later, on the training thread
+    bake = export_baker(app)  # the colour edits as shown now
     selection = app.editor.selected.copy() if app.editor is not None else None
     path = Path(st.path)
     path.parent.mkdir(parents=True, exist_ok=True)
@@ -96,6 +99,6 @@ def write(app) -> None:
         app.export.written.append(result.path)
 
     if app.session.running and app.session.trainer is not None:
-        app.submit_to_trainer("export", lambda trainer: export(trainer_model(trainer)), said)
+        app.submit_to_trainer("export", lambda trainer: export(bake(trainer_model(trainer), trainer)), said)
     else:
-        said(export(model_to_export(app)))
+        said(export(bake(model_to_export(app), app.session.trainer)))

@@ -74,6 +74,7 @@ class RunsMixin:
             model.parent.mkdir(parents=True, exist_ok=True)
             write_ply(model, self.edited_gaussians())
         self.original = self.static_model
+        self.colour.stylized_from = str(model)  # the Colour panel offers it as the result's original
         self.error = ""
         self.session.start([stylize_stage(self.paths.data, self.paths.style, next_run_dir(self.out_dir()),
                                           config=self._stylize_config_copy(), model=model,

@@ -85,6 +85,7 @@ class EditState:
     selected: np.ndarray
     hidden: np.ndarray
     index: np.ndarray
+    extra: dict = field(default_factory=dict)  # other panels' edits (colour), each value immutable
 
 
 @dataclass
@@ -100,7 +101,8 @@ class Editor:
     version: int = 0  # bumped by every change the view must show
     on_keep: object = None  # called with each keep-mask (and the structure it was made on): a running trainer
     structure_version: int = 0  # the trainer's structure the rows refer to, counting the keeps handed to it
-
+    extra: dict = field(default_factory=dict)  # other panels' edits by name (colour_view), undone with the rest
+    _merge: object = None  # the gesture whose first change made the top undo step (set_extra's merge)
 
     def __post_init__(self) -> None:
         n = len(self.model)
@@ -161,17 +163,29 @@ class Editor:
         self.version += 1
         return keep
 
+    def set_extra(self, key: str, value, merge=None) -> None:
+        """Another panel's edit (an immutable value) as an undo step. Changes carrying the same ``merge`` token one
+        after another (a slider's drag) make one step: undo goes back to before the drag."""
+        if merge is None or merge != self._merge or not self.undo_stack:
+            self._push()
+            self._merge = merge
+        self.extra = {**self.extra, key: value}
+        self.version += 1
+
     # ------------------------------------------------------------------ history
     def _state(self) -> EditState:
-        return EditState(self.model, self.selected.copy(), self.hidden.copy(), self.index)
+        return EditState(self.model, self.selected.copy(), self.hidden.copy(), self.index, self.extra)
 
     def _restore(self, state: EditState) -> None:
         self.model, self.selected, self.hidden, self.index = state.model, state.selected, state.hidden, state.index
+        self.extra = state.extra
+        self._merge = None
         self.version += 1
 
     def _push(self) -> None:
         self.undo_stack.append(self._state())
         self.redo_stack.clear()
+        self._merge = None
 
     def undo(self) -> bool:
         if not self.undo_stack:
