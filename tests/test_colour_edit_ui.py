@@ -326,3 +326,71 @@ def test_export_of_an_opened_stylized_model_is_what_export_project_bakes(stylize
     ed.undo()
     undone = cv.edits_of(app)  # the drag's two changes went back in one step
     assert undone.adjustments == [] and undone.strength == 1.0 and undone.strength_regions == []
+
+
+def test_style_strength_while_and_after_stylizing_exports_the_original_and_the_stylized(demo_scene, tmp_path):
+    """A real stylization started from the Training panel and paused: style strength 0 (every Gaussian) shows the
+    model as it was before, 1 the stylized one again; after Stop, the Edit panel's export at 0 is the input model's
+    SH bit for bit and at 1 the saved stylized model's."""
+    scene_dir, style, model = demo_scene
+    found = run_gui(PRELUDE + STILL + f"""
+from imgui_bundle import imgui
+app = ViewerApp(Paths(model={str(model)!r}, data={str(scene_dir)!r}, style={str(style)!r}, out=str(OUT / "out")),
+                stylize_overrides={{"max_side": 64, "iters_per_view": 2}})
+install_reader(app)
+
+def test(ctx):
+    wait(ctx, lambda: app.view is not None and app.view.has_model(0), 60, "the model")
+    open_window(ctx, "Scene")
+    ctx.item_click("frustums")          # the current view's frustum turns red while stylizing
+    ctx.item_click("stylization path")
+    photo = still(ctx)
+    open_window(ctx, "Training")
+    ctx.item_click("Stylize")
+    wait(ctx, lambda: app.session.status().step >= 3, 240, "three stylization steps")
+    ctx.item_click("Pause")
+    wait(ctx, lambda: app.session.status().state == "paused", 60, "the pause")
+    app.training.refresh_s = 0.05
+    wait(ctx, lambda: app.training.shown_step == app.session.status().step, 60, "the paused model on screen")
+    stylized = still(ctx)
+    open_window(ctx, "Colour")
+    ctx.combo_click("apply to/every Gaussian")
+    ctx.item_input_value("style strength", 0.0)
+    zero = still(ctx)
+    ctx.item_input_value("style strength", 1.0)
+    one = still(ctx)
+    for name, img in (("photo", photo), ("stylized", stylized), ("zero", zero), ("one", one)):
+        np.save(OUT / f"{{name}}.npy", img)
+    open_window(ctx, "Training")
+    ctx.item_click("Stop")
+    wait(ctx, lambda: not app.session.running, 120, "the run to stop and save")
+    ctx.yield_(3)
+    found["runs"] = [str(p) for p in app.training.runs]
+    open_window(ctx, "Colour")
+    for value in (0.0, 1.0):
+        ctx.item_input_value("style strength", value)
+        app.export.path = str(OUT / f"strength_{{value:g}}.ply")
+        open_window(ctx, "Edit")
+        ctx.item_click("Export")
+        open_window(ctx, "Colour")
+    found["undo_steps"] = len(app.editor.undo_stack)
+
+run(app, test)
+found["error"] = app.error
+Path(os.environ["RESULT"]).write_text(json.dumps(found))
+""", tmp_path)
+    import torch
+
+    from training.model.ply_io import read_ply
+
+    assert found["error"] == "", found["error"]
+    photo, stylized, zero, one = (np.load(tmp_path / f"{n}.npy").astype(np.int16)
+                                  for n in ("photo", "stylized", "zero", "one"))
+    assert np.abs(stylized - photo).mean() > 2, "the stylization did not change the picture"
+    assert np.abs(zero - photo).max() <= 1, "strength 0 does not show the model as it was before stylizing"
+    assert np.array_equal(one, stylized), "strength 1 does not show the stylized model"
+    original, saved = read_ply(model), read_ply(found["runs"][-1])
+    assert torch.equal(read_ply(tmp_path / "strength_0.ply").sh, original.sh)
+    assert torch.equal(read_ply(tmp_path / "strength_1.ply").sh, saved.sh)
+    assert not torch.equal(original.sh, saved.sh)
+    assert found["undo_steps"] == 4  # each strength typed in is one undo step

@@ -24,7 +24,7 @@ class SelectToolSettings:
     opacity: list[float] = field(default_factory=lambda: [0.0, 0.5])
     size: list[float] | None = None  # [lo, hi] world units; the model's span at first use
     neighbours: int = 8
-    surface_tolerance: float = 0.05  # fraction of the depth at the pixel
+    surface_tolerance: float = 0.1  # fraction of the depth at the pixel
     neighbour_cache: st.Neighbours = field(default_factory=st.Neighbours)
 
 
