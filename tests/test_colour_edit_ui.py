@@ -322,6 +322,9 @@ def test_export_of_an_opened_stylized_model_is_what_export_project_bakes(stylize
     assert torch.equal(mine.sh, theirs.sh) and torch.equal(mine.means, theirs.means)
     shown = cv.displayed(app, ed.model).sh
     assert np.allclose(shown, mine.sh.numpy(), atol=1e-5)  # the view shows what was exported
+    again = ViewerApp(Paths(out=str(tmp_path / "out2")))
+    again.open_project(str(project))  # as File > Open project does: the edits and the paired original come back
+    assert np.array_equal(cv.displayed(again, again.editor.model).sh, shown)
     assert not np.allclose(shown, b.sh[rows].numpy(), atol=1e-3)
     ed.undo()
     undone = cv.edits_of(app)  # the drag's two changes went back in one step

@@ -4,6 +4,10 @@ Opens a window with the model (a 3DGS PLY or .splat), the dataset's cameras and 
 reconstruction or a stylization runs live beside the view, with sliders for the stylization's settings.
 ``--run`` starts one at once. Closing the window (or Ctrl-C) stops the trainer and saves: a reconstruction's
 checkpoint and PLY, a stylization's current model, under the output folder.
+
+The Edit panel selects (rectangle, brush, lasso, box, sphere; by colour, visible surface, opacity, size and
+neighbours), hides, deletes and crops; the Colour panel adjusts brightness, contrast, saturation, hue, temperature
+and the style strength on the selection or on everything. All are undoable, and exported and saved as shown.
 """
 
 from __future__ import annotations

@@ -82,15 +82,11 @@ def current_adjustment(edits: ColourEdits, region) -> ColourAdjustment:
 
 
 def current_strength(edits: ColourEdits, region) -> float:
-    if region is None:
-        return edits.strength
-    if edits.strength_regions and _same_region(edits.strength_regions[-1][0], region):
+    """The value the slider shows: the region's own (the last strength region when it is this one), else the
+    strength everywhere."""
+    if region is not None and edits.strength_regions and _same_region(edits.strength_regions[-1][0], region):
         return float(edits.strength_regions[-1][1])
-    s = np.full(len(region), edits.strength)
-    for mask, value in edits.strength_regions:
-        s[mask] = value
-    values = np.unique(s[region])
-    return float(values[0]) if len(values) == 1 else edits.strength
+    return edits.strength
 
 
 def with_adjustment(edits: ColourEdits, region, adjustment: ColourAdjustment) -> ColourEdits:
@@ -136,6 +132,8 @@ def strength_problem(app) -> str | None:
     if trainer is not None:
         if getattr(trainer.config, "params", "colour") != "colour":
             return "style strength needs a colour-only stylization: this one moved the geometry too (params all)"
+        if app.editor is None or len(trainer.original_sh) != app.editor.count:
+            return "the run's Gaussians are no longer the opened model's rows (edited since it started)"
         return None
     if app.session.trainer is not None:
         return "style strength applies to a stylized model: this run is a reconstruction"
@@ -288,7 +286,7 @@ def load_from_project(app, opened) -> None:
             pair_original(app, str(entry.original.path))
         except Exception as exc:  # noqa: BLE001  (one line; the rest of the project still opens)
             app.say(f"cannot pair the original model: {str(exc).splitlines()[0] if str(exc) else exc}")
-    if not entry.colour.is_identity or entry.colour.adjustments:
+    if not entry.colour.is_identity:
         app.editor.extra = {**app.editor.extra, KEY: entry.colour}
         app.editor.version += 1
 
