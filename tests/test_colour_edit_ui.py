@@ -20,7 +20,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from tests.viewer_harness import PRELUDE, ROOT, Xvfb, make_demo_scene, run_gui, xvfb_missing
+from tests.viewer_harness import PRELUDE, ROOT, make_demo_scene, run_gui
 
 pytestmark = pytest.mark.slow
 
