@@ -41,6 +41,10 @@ STILL = """
 _reads = []
 
 def install_reader(app):
+    import functools
+
+    # a small window: software GL pays per pixel
+    app.runner_params = functools.partial(type(app).runner_params, app, size=(1100, 720))
     paced = app.pace
 
     def pace():
