@@ -144,6 +144,7 @@ Path(os.environ["RESULT"]).write_text(json.dumps(found))
 def test_selection_tools_pick_what_they_should(demo_scene, tmp_path):
     scene_dir, _, model = demo_scene
     found = run_gui(PRELUDE + STILL + f"""
+import pickle
 from imgui_bundle import imgui
 from app.viewer import select_tools as st
 from app.viewer.edit_panel import view_camera
@@ -166,6 +167,8 @@ def test(ctx):
     found["picked"] = list(app.select_tools.picked) if app.select_tools.picked else None
     found["pick_selected"] = np.nonzero(ed.selected)[0].tolist()
     found["pick_cursor"] = [w * 0.5, h * 0.55]
+    with open(OUT / "camera.pkl", "wb") as f:
+        pickle.dump(cam, f)
     testing.capture(ctx, str(OUT / "colour_pick.png"))
     # surface brush: a stroke across the middle
     ctx.combo_click("tool/surface brush")
@@ -217,7 +220,12 @@ run(app, test)
 found["error"] = app.error
 Path(os.environ["RESULT"]).write_text(json.dumps(found))
 """, tmp_path)
+    from types import SimpleNamespace
+
     from scipy.spatial import cKDTree
+
+    from app.render_inputs import load_model_arrays
+    from app.viewer.select_tools import weights_at
 
     from training.model.ply_io import read_ply
     from training.model.sh_constants import SH_C0
@@ -229,7 +237,12 @@ Path(os.environ["RESULT"]).write_text(json.dumps(found))
     # colour pick: a Gaussian's colour was picked and exactly those within the tolerance (0.12) are selected
     assert found["picked"] is not None
     picked = np.array(found["picked"])
-    assert np.min(np.abs(colours - picked).max(axis=1)) < 1e-6, "the picked colour is no Gaussian's"
+    with open(tmp_path / "camera.pkl", "rb") as f:
+        camera = pickle.load(f)
+    arrays = load_model_arrays(Path(model))
+    shown = SimpleNamespace(means=arrays[0], scales=arrays[1], quats=arrays[2], opacities=arrays[3])
+    under = np.argmax(weights_at(shown, camera, *found["pick_cursor"]))  # the splat the pixel shows most of
+    assert np.abs(colours[under] - picked).max() < 1e-6, "the picked colour is not the splat under the cursor's"
     expected = np.nonzero(np.linalg.norm(colours - picked, axis=1) <= 0.12)[0]
     assert found["pick_selected"] == expected.tolist() and 0 < len(expected) < len(g)
     # surface brush: part of what the plain brush takes, the nearest ones

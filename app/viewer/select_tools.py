@@ -6,6 +6,9 @@ Colours are the base (view-independent) colour a Gaussian shows, ``SH_C0 * dc + 
 Euclidean distance (so a tolerance of 0.1 is a tenth of the way from black to a pure primary). Sizes are the
 largest of a Gaussian's three standard deviations (world units): what a user sees as a splat's extent.
 
+"Colour pick" takes the Gaussian that gives the pixel under the cursor most of its colour (each Gaussian's alpha
+there times the transmittance in front of it, as the renderer composites): the splat a user sees there.
+
 The surface brush needs the depth the renderer composited at each pixel (``render_arrays``'s expected depth,
 sum z a T / alpha): a Gaussian under the brush is on the visible surface when its centre's camera depth is within
 ``tolerance`` (a fraction) of the depth drawn at its pixel, so Gaussians behind a wall, or inside an object, stay
@@ -74,29 +77,71 @@ def surface_brush(means, camera, points, radius: float, depth: np.ndarray, toler
     return out
 
 
-def pick(means: np.ndarray, camera, x: float, y: float, depth: np.ndarray, radius: float = 8.0,
-         tolerance: float = 0.1, visible: np.ndarray | None = None) -> int | None:
-    """The Gaussian under pixel (x, y): of the centres within ``radius`` pixels that lie on the drawn surface
-    there, the nearest to the cursor; None over the background or where no centre is near."""
-    h, w = depth.shape
-    ix, iy = int(np.clip(np.floor(x), 0, w - 1)), int(np.clip(np.floor(y), 0, h - 1))
-    if depth[iy, ix] <= 0:
-        return None
-    uv, front = project(means, camera)
-    d2 = (uv[:, 0] - x) ** 2 + (uv[:, 1] - y) ** 2
-    near = front & (d2 <= radius ** 2)
-    if visible is not None:
-        near &= visible
-    rows = np.nonzero(near)[0]
-    if len(rows) == 0:
-        return None
-    z = camera_depths(means[rows], camera)
-    surface = float(depth[iy, ix])
-    on = np.abs(z - surface) <= tolerance * surface
-    if on.any():
-        rows, d = rows[on], d2[rows[on]]
-        return int(rows[np.argmin(d)])
-    return int(rows[np.argmin(np.abs(z - surface))])  # none on it: the centre nearest the surface in depth
+def _rotations(quats: np.ndarray) -> np.ndarray:
+    """(N, 3, 3) from unit quaternions (w, x, y, z)."""
+    w, x, y, z = (np.asarray(quats, np.float64)[:, i] for i in range(4))
+    return np.stack([np.stack([1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)], -1),
+                     np.stack([2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)], -1),
+                     np.stack([2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)], -1)], -2)
+
+
+def weights_at(model, camera, x: float, y: float, visible: np.ndarray | None = None,
+               chunk: int = 1 << 18) -> np.ndarray:
+    """(N,) each Gaussian's share of pixel (x, y)'s colour, alpha times the transmittance left in front of it, as
+    the renderer composites (EWA projection with its low-pass, ALPHA_MIN and ALPHA_MAX; training/raster)."""
+    from training.raster.constants import ALPHA_MAX, ALPHA_MIN, EPS2D, NEAR_PLANE
+
+    from renderer_gl.camera import view
+
+    lim_right, lim_left, lim_bottom, lim_top = view(camera).jacobian_limits()
+    n = len(model.means)
+    w2c = np.asarray(camera.world_to_camera, np.float64)
+    alpha = np.zeros(n)
+    z_all = np.full(n, np.inf)
+    for lo in range(0, n, chunk):
+        sl = slice(lo, min(lo + chunk, n))
+        pc = np.asarray(model.means[sl], np.float64) @ w2c[:3, :3].T + w2c[:3, 3]
+        z = pc[:, 2]
+        ok = z > NEAR_PLANE
+        if visible is not None:
+            ok &= visible[sl]
+        rows = np.nonzero(ok)[0]
+        if len(rows) == 0:
+            continue
+        p, zr = pc[rows], z[rows]
+        m = w2c[:3, :3] @ _rotations(model.quats[sl][rows]) * np.asarray(model.scales[sl][rows], np.float64)[:, None]
+        # the Jacobian at x/z, y/z clamped to 1.3x the field of view, as the renderer does: a Gaussian just in front
+        # of the camera far to the side would otherwise spread over the whole picture
+        u = np.clip(p[:, 0] / zr, -lim_left, lim_right)
+        v = np.clip(p[:, 1] / zr, -lim_top, lim_bottom)
+        j = np.zeros((len(rows), 2, 3))
+        j[:, 0, 0], j[:, 0, 2] = camera.fx / zr, -camera.fx * u / zr
+        j[:, 1, 1], j[:, 1, 2] = camera.fy / zr, -camera.fy * v / zr
+        t = j @ m
+        cov = t @ t.transpose(0, 2, 1) + EPS2D * np.eye(2)
+        a, b, c = cov[:, 0, 0], cov[:, 0, 1], cov[:, 1, 1]
+        det = a * c - b * b
+        dx = x - (camera.fx * p[:, 0] / zr + camera.cx)
+        dy = y - (camera.fy * p[:, 1] / zr + camera.cy)
+        power = -0.5 * (c * dx * dx - 2 * b * dx * dy + a * dy * dy) / np.maximum(det, 1e-30)
+        al = np.minimum(ALPHA_MAX, np.asarray(model.opacities[sl][rows], np.float64) * np.exp(power))
+        al[(al < ALPHA_MIN) | (det <= 0)] = 0.0
+        alpha[lo + rows] = al
+        z_all[lo + rows] = zr
+    order = np.argsort(z_all, kind="stable")  # front to back
+    a_sorted = alpha[order]
+    transmittance = np.concatenate([[1.0], np.cumprod(1.0 - a_sorted)[:-1]])
+    weights = np.zeros(n)
+    weights[order] = a_sorted * transmittance
+    return weights
+
+
+def pick(model, camera, x: float, y: float, visible: np.ndarray | None = None) -> int | None:
+    """The Gaussian under pixel (x, y): the one that gives the pixel most of its colour; None over the
+    background (no Gaussian gives it a visible share)."""
+    w = weights_at(model, camera, x, y, visible)
+    best = int(np.argmax(w)) if len(w) else 0
+    return best if len(w) and w[best] >= 1.0 / 255.0 else None
 
 
 class Neighbours:

@@ -51,15 +51,14 @@ def gesture(app, points: list[tuple[float, float]]) -> None:
 
     ed, s = app.editor, app.select_tools
     cam = view_camera(app)
-    depth = render_depth(app, cam)
-    means = ed.model.means
     if app.edit.tool == "surface brush":
         scale = imgui.get_io().display_framebuffer_scale.x
-        picked = st.surface_brush(means, cam, points, app.edit.brush_radius * scale, depth, s.surface_tolerance)
+        picked = st.surface_brush(ed.model.means, cam, points, app.edit.brush_radius * scale,
+                                  render_depth(app, cam), s.surface_tolerance)
         ed.select(picked, app.edit.select_mode)
         return
     x, y = points[-1]
-    row = st.pick(means, cam, x, y, depth, visible=~ed.hidden)
+    row = st.pick(ed.model, cam, x, y, visible=~ed.hidden)
     if row is None:
         app.say("colour pick: no Gaussian under the cursor")
         return
