@@ -90,7 +90,10 @@ def test(ctx):
     ctx.item_click("Select by size")
     found["n_size"] = int(ed.selected.sum())
     shot("size_range", ctx)
-    ed.select(np.arange(ed.count) == 100, "set")
+    from app.viewer.edit_panel import view_camera
+    from app.viewer.select_tools import pick
+    seed = pick(ed.model, view_camera(app), w * 0.5, h * 0.4)   # the splat drawn most at that pixel
+    ed.select(np.arange(ed.count) == seed, "set")
     for _ in range(3):
         ctx.item_click("Grow")
     found["n_grow"] = int(ed.selected.sum())
@@ -109,6 +112,9 @@ def test(ctx):
     open_window(ctx, "Colour")
     ctx.combo_click("apply to/the selection")
     ctx.item_input_value("style strength", 1.0)
+    open_window(ctx, "Edit")
+    ctx.item_click("None")                   # untinted: the left half stylized, the right half the original
+    open_window(ctx, "Colour")
     shot("style_strength", ctx)
 
 run(app, test)
