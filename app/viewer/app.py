@@ -187,9 +187,8 @@ class ViewerApp(RunsMixin):
     def open_project(self, path: str) -> None:
         """A .splatproj: its model with the edits, the dataset, the painting, the stylization settings, the camera
         and keyframes, and the dock layout; one line for each file it could not find."""
-        from app.viewer.project_io import apply_project
-
         from app.viewer.colour_view import load_from_project
+        from app.viewer.project_io import apply_project
 
         opened = apply_project(self, path)
         for line in opened.problems:
@@ -206,11 +205,10 @@ class ViewerApp(RunsMixin):
         from imgui_bundle import imgui
 
         from app.project import save_project
+        from app.viewer.colour_view import for_project
         from app.viewer.project_io import project_from_app
 
         target = Path(path or self.project.path or Path(self.paths.out) / "project.splatproj")
-        from app.viewer.colour_view import for_project
-
         opened = self.project.opened
         entry = opened.entry if opened is not None else None
         colour, original = for_project(self)

@@ -74,9 +74,8 @@ def _count(app, selection_only: bool) -> int | None:
 def write(app) -> None:
     """Export the model on screen. A running trainer's model is copied and written on the training thread between
     two steps (a consistent model, never one half-way through a step or an edit); the line comes back later."""
-    from training.model.export import human_size, write_export
-
     from app.viewer.colour_view import export_baker
+    from training.model.export import human_size, write_export
 
     st = replace(app.export)  # the settings as they are now: the write may run later, on the training thread
     bake = export_baker(app)  # the colour edits as shown now

@@ -104,6 +104,7 @@ class Editor:
     extra: dict = field(default_factory=dict)  # other panels' edits by name (colour_view), undone with the rest
     _merge: object = None  # the gesture whose first change made the top undo step (set_extra's merge)
 
+
     def __post_init__(self) -> None:
         n = len(self.model)
         self.selected = np.zeros(n, bool) if self.selected is None else self.selected
