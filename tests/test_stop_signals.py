@@ -58,3 +58,31 @@ def test_sigterm_stops_a_reconstruction_with_a_checkpoint_and_exit_143(tmp_path)
     assert "stack trace" not in err and "Traceback" not in err, err
     state = load_checkpoint(out / "checkpoint.pt")
     assert 0 < state["step"] < 3000
+
+
+@pytest.mark.slow
+def test_sigterm_stops_the_headless_demo_with_its_reconstruction_checkpointed(tmp_path):
+    """The demo in a container stopped by `docker stop`: the reconstruction under way keeps its checkpoint, one line
+    says so, exit 143, no stack dump."""
+    from training.reconstruct.checkpoint import load_checkpoint
+
+    out = tmp_path / "demo"
+    proc = subprocess.Popen([sys.executable, "-m", "app", "demo", "--headless", "-o", str(out), "--recon-iters",
+                             "3000"], cwd=ROOT, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+                            env=dict(os.environ))
+    ckpt = out / "reconstruction" / "checkpoint.pt"
+    try:
+        t0 = time.time()
+        while time.time() - t0 < 240 and proc.poll() is None and not ckpt.exists():
+            time.sleep(0.5)  # until the reconstruction has written a checkpoint of its own
+        assert proc.poll() is None and ckpt.exists(), proc.communicate()
+        step_before = load_checkpoint(ckpt)["step"]
+        proc.send_signal(signal.SIGTERM)
+        _, err = proc.communicate(timeout=120)
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+    assert proc.returncode == 143, err
+    assert "stopped by SIGTERM" in err and "checkpoint saved" in err, err
+    assert "stack trace" not in err and "Traceback" not in err, err
+    assert load_checkpoint(ckpt)["step"] >= step_before

@@ -5,6 +5,10 @@ reconstruction or a stylization runs live beside the view, with sliders for the 
 ``--run`` starts one at once. Closing the window (or Ctrl-C) stops the trainer and saves: a reconstruction's
 checkpoint and PLY, a stylization's current model, under the output folder.
 
+The Edit panel selects (rectangle, brush, lasso, box, sphere; by colour, visible surface, opacity, size and
+neighbours), hides, deletes and crops; the Colour panel adjusts brightness, contrast, saturation, hue, temperature
+and the style strength on the selection or on everything. All are undoable, and exported and saved as shown.
+
 The "Scale and up" panel gives the scene its real size (two points picked on the model, a known length typed) and
 its up axis (a picked floor, a plane fitted around a picked point, or the dataset cameras' mean up); both move the
 model and the cameras, undo with Ctrl+Z, are saved in the project and applied by ``export --project``.

@@ -16,7 +16,9 @@ from typing import Any
 
 import numpy as np
 
+from app.viewer.colour_view import ColourState, displayed, show_run_colours
 from app.viewer.runs import RunsMixin
+from app.viewer.select_tools_panel import SelectToolSettings
 from app.viewer.session import LiveSession, SessionMessage
 from app.viewer.state import (CameraPathState, EditTools, ExportSettings, ProjectState, TrainingState,
                               WindowState)
@@ -73,6 +75,8 @@ class ViewerApp(RunsMixin):
         self.source_gaussians = None  # the opened model as read, raw parameters (what edits index into)
         out = Path(self.paths.out)
         self.edit = EditTools()
+        self.colour = ColourState()  # the Colour panel's original model and shown colours (colour_view.py)
+        self.select_tools = SelectToolSettings()  # the Edit panel's more selections (select_tools_panel.py)
         self.export = ExportSettings(path=str(out / "export.ply"))
         self.path = CameraPathState(file=str(out / "camera_path.json"), video=str(out / "path.mp4"))
         self.training = TrainingState(preset=preset, recon_iters=recon_iters, downscale=downscale,
@@ -189,11 +193,13 @@ class ViewerApp(RunsMixin):
     def open_project(self, path: str) -> None:
         """A .splatproj: its model with the edits, the dataset, the painting, the stylization settings, the camera
         and keyframes, and the dock layout; one line for each file it could not find."""
+        from app.viewer.colour_view import load_from_project
         from app.viewer.project_io import apply_project
 
         opened = apply_project(self, path)
         for line in opened.problems:
             self.say(line)
+        load_from_project(self, opened)
         self.project.path, self.project.opened = str(path), opened
         self.project.layout_to_load = opened.layout
         self.training.base_model = self.paths.model
@@ -205,15 +211,16 @@ class ViewerApp(RunsMixin):
         from imgui_bundle import imgui
 
         from app.project import save_project
+        from app.viewer.colour_view import for_project
         from app.viewer.project_io import project_from_app
 
         target = Path(path or self.project.path or Path(self.paths.out) / "project.splatproj")
         opened = self.project.opened
         entry = opened.entry if opened is not None else None
+        colour, original = for_project(self)
         project = project_from_app(self, layout=imgui.save_ini_settings_to_memory(),
                                    transform=None if entry is None else entry.transform,
-                                   colour=None if entry is None else entry.colour,
-                                   original=None if entry is None or entry.original is None else str(entry.original.path),
+                                   colour=colour, original=original,
                                    carry=[] if opened is None else opened.not_shown)
         written = save_project(target, project)
         self.project.path = str(written)
@@ -417,7 +424,7 @@ class ViewerApp(RunsMixin):
             if snap is not None:
                 self.training.shown_step = snap.step
             t0 = time.perf_counter()
-            shown = snap is not None and self.view.show(snap, 0)
+            shown = snap is not None and self.view.show(displayed(self, snap), 0)
             if self.training_now():
                 self.view.charge(time.perf_counter() - t0)
             if shown:
@@ -442,17 +449,19 @@ class ViewerApp(RunsMixin):
         if editing_live and self.edit.shown_version != self.editor.version:
             snap = self.session.snapshot()
             if snap is not None and len(snap) == self.editor.count:
-                self.view.show(snap, 0)
+                self.view.show(displayed(self, snap), 0)
                 self.view.renderer.set_flags(self.editor.flags(), 0)
                 self.edit.shown_version = self.editor.version
                 self.view.dirty = True
         elif (self.editor is not None and self.session.trainer is None
               and self.edit.shown_version != self.editor.version):
-            self.view.show(self.editor.model, 0)
+            self.view.show(displayed(self, self.editor.model), 0)
             self.view.renderer.set_flags(self.editor.flags(), 0)
             self._describe(self.editor.model)
             self.edit.shown_version = self.editor.version
             self.view.dirty = True
+        elif self.editor is not None and self.edit.shown_version != self.editor.version:
+            show_run_colours(self)  # a stylization's model with the Colour panel's edits (colour_view.py)
 
     def training_now(self) -> bool:
         """A trainer is stepping (not paused, not loading): the view shares the CPU with it."""

@@ -10,6 +10,7 @@ from __future__ import annotations
 import numpy as np
 from imgui_bundle import imgui
 
+from app.viewer import select_tools_panel
 from app.viewer import selection as sel
 
 from app.viewer.state import TOOLS  # noqa: E402
@@ -50,6 +51,8 @@ def handle_gesture(app, hovered: bool, active: bool) -> None:
 
 
 def select_by_gesture(app, points: list[tuple[float, float]]) -> None:
+    if app.edit.tool in select_tools_panel.VIEW_TOOLS:
+        return select_tools_panel.gesture(app, points)
     cam = view_camera(app)
     means = app.editor.model.means
     if app.edit.tool == "rect":
@@ -73,7 +76,7 @@ def draw_gesture(app) -> None:
         (x0, y0), (x1, y1) = pts[0], pts[-1]
         draw.add_rect(imgui.ImVec2(min(x0, x1), min(y0, y1)), imgui.ImVec2(max(x0, x1), max(y0, y1)), col, 0.0,
                       1.5)
-    elif app.edit.tool == "brush":
+    elif app.edit.tool in ("brush", "surface brush"):
         for x, y in pts[-1:]:
             draw.add_circle(imgui.ImVec2(x, y), app.edit.brush_radius, col, 0, 1.5)
     else:
@@ -95,7 +98,7 @@ def edit_panel(app) -> None:
     if changed:
         app.edit.tool = TOOLS[i]
     imgui.set_item_tooltip("what a left drag in the 3D view does (orbit turns the camera)")
-    if app.edit.tool == "brush":
+    if app.edit.tool in ("brush", "surface brush"):
         _, app.edit.brush_radius = imgui.slider_float("brush radius", app.edit.brush_radius, 2.0, 200.0)
     changed, i = imgui.combo("selection mode", sel.MODES.index(app.edit.select_mode), list(sel.MODES))
     if changed:
@@ -130,6 +133,7 @@ def edit_panel(app) -> None:
     if imgui.button("Select in sphere"):
         app.guarded("select", lambda: ed.select(sel.in_sphere(ed.model.means, sphere[0], sphere[1]),
                                                 app.edit.select_mode))
+    select_tools_panel.more_selections(app)
     imgui.separator_text("Edits")
     for label, action in (("Hide", ed.hide), ("Show all", ed.show_all), ("Delete", ed.delete)):
         if imgui.button(label):

@@ -76,9 +76,11 @@ def _count(app, selection_only: bool) -> int | None:
 def write(app) -> None:
     """Export the model on screen. A running trainer's model is copied and written on the training thread between
     two steps (a consistent model, never one half-way through a step or an edit); the line comes back later."""
+    from app.viewer.colour_view import export_baker
     from training.model.export import human_size, write_export
 
     st = replace(app.export)  # the settings as they are now: the write may run later, on the training thread
+    bake = export_baker(app)  # the colour edits as shown now
     selection = app.editor.selected.copy() if app.editor is not None else None
     path = Path(st.path)
     path.parent.mkdir(parents=True, exist_ok=True)
@@ -98,6 +100,6 @@ def write(app) -> None:
         app.export.written.append(result.path)
 
     if app.session.running and app.session.trainer is not None:
-        app.submit_to_trainer("export", lambda trainer: export(trainer_model(trainer)), said)
+        app.submit_to_trainer("export", lambda trainer: export(bake(trainer_model(trainer), trainer)), said)
     else:
-        said(export(model_to_export(app)))
+        said(export(bake(model_to_export(app), app.session.trainer)))

@@ -76,6 +76,7 @@ class RunsMixin:
         from app.viewer.world_edit import in_file_frame
 
         self.original = in_file_frame(self, self.static_model)  # the run works in the file's (dataset's) frame
+        self.colour.stylized_from = str(model)  # the Colour panel offers it as the result's original
         self.error = ""
         self.session.start([stylize_stage(self.paths.data, self.paths.style, next_run_dir(self.out_dir()),
                                           config=self._stylize_config_copy(), model=model,

@@ -85,7 +85,7 @@ class EditState:
     selected: np.ndarray
     hidden: np.ndarray
     index: np.ndarray
-    extras: dict = field(default_factory=dict)
+    extras: dict = field(default_factory=dict)  # other panels' edits by name (world, colour), each value immutable
 
 
 @dataclass
@@ -101,9 +101,10 @@ class Editor:
     version: int = 0  # bumped by every change the view must show
     on_keep: object = None  # called with each keep-mask (and the structure it was made on): a running trainer
     structure_version: int = 0  # the trainer's structure the rows refer to, counting the keeps handed to it
-    # what else an edit step carries, restored by undo with the model (e.g. "world": the scene's transform that
-    # the measure and up tools set); values are never changed in place, only replaced
+    # what else an edit step carries, restored by undo with the model ("world": the scene's transform that the
+    # measure and up tools set; "colour": colour_view's layers); values are never changed in place, only replaced
     extras: dict = field(default_factory=dict)
+    _merge: object = None  # the gesture whose first change made the top undo step (set_extra's merge)
 
 
     def __post_init__(self) -> None:
@@ -171,8 +172,18 @@ class Editor:
         if len(model) != len(self.model):
             raise ValueError(f"a change must keep the {len(self.model)} Gaussians, got {len(model)}")
         self._push()
+        self._merge = None
         self.model = model
         self.extras = {**self.extras, **extras}
+        self.version += 1
+
+    def set_extra(self, key: str, value, merge=None) -> None:
+        """Another panel's edit (an immutable value) as an undo step. Changes carrying the same ``merge`` token one
+        after another (a slider's drag) make one step: undo goes back to before the drag."""
+        if merge is None or merge != self._merge or not self.undo_stack:
+            self._push()
+            self._merge = merge
+        self.extras = {**self.extras, key: value}
         self.version += 1
 
     # ------------------------------------------------------------------ history
@@ -182,11 +193,13 @@ class Editor:
     def _restore(self, state: EditState) -> None:
         self.model, self.selected, self.hidden, self.index = state.model, state.selected, state.hidden, state.index
         self.extras = dict(state.extras)
+        self._merge = None
         self.version += 1
 
     def _push(self) -> None:
         self.undo_stack.append(self._state())
         self.redo_stack.clear()
+        self._merge = None
 
     def undo(self) -> bool:
         if not self.undo_stack:

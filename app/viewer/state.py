@@ -9,7 +9,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-TOOLS = ("orbit", "rect", "brush", "lasso")
+TOOLS = ("orbit", "rect", "brush", "lasso", "surface brush", "colour pick")  # the last two: select_tools_panel
 REGIONS = ("all", "selection", "unselected")
 
 
