@@ -55,7 +55,11 @@ def project_from_app(app, layout: str = "", transform=None, colour: ColourEdits 
     (``imgui.save_ini_settings_to_memory()``). ``carry``: the models of an opened project the viewer did not show
     (``Opened.not_shown``), written back unchanged so saving loses none of them."""
     models = []
-    if app.editor is not None and app.paths.model and not app.edit.live:
+    if app.editor is not None and app.paths.model and not app.edit.live and app.scene_models.parts:
+        from app.viewer.scene_models import project_entries
+
+        models += project_entries(app, colour, original)  # each model of the scene with its rows and transform
+    elif app.editor is not None and app.paths.model and not app.edit.live:
         ed = app.editor
         models.append(ModelEntry(FileRef(Path(app.paths.model)), Path(app.paths.model).stem,
                                  FileRef(Path(original)) if original else None,
@@ -116,6 +120,9 @@ def apply_project(app, path: str | Path) -> Opened:
         ed.redo_stack.clear()
         ed.version += 1
         opened.entry = entry
+        from app.viewer.scene_models import open_project_models
+
+        open_project_models(app, opened)  # its transform, and the project's other models joined to the scene
     for ref, fn, what in ((project.dataset, app.open_data, "dataset"), (project.painting, app.open_style,
                                                                         "painting")):
         if ref is not None and not ref.missing:
