@@ -183,6 +183,10 @@ def test(ctx):
     found["focal"] = float(cam.camera(*app.window.view_rect[2:]).fy)  # pixels of the view (scale 1 here)
     found["drag_from"] = on_screen(centre)[0].tolist()
     drag(ctx, on_screen(centre)[0], (-40, 30))
+    found["after_move"] = app.scene_models.parts[-1].transform.tolist()
+    ctx.key_press(imgui.Key.y)  # scale: the handle at the centre scales uniformly
+    settle(ctx, 0.3)
+    drag(ctx, on_screen(app.editor.model.means[rows].astype(float).mean(axis=0))[0], (50, 0))
     found["parts"] = [[p.file, p.transform.tolist()] for p in app.scene_models.parts]
     app.export.path = str(OUT / "merged.ply")
     open_window(ctx, "Edit")
@@ -203,18 +207,26 @@ Path(os.environ["RESULT"]).write_text(json.dumps(found))
     depth = float((np.array(found["centre"]) - c2w[:, 3]) @ c2w[:, 2])
     pixel = depth / found["focal"]
     expected_shift = c2w[:, :3] @ np.array([-40 * pixel, 30 * pixel, 0.0])
-    moved = [p for p in found["parts"] if p[0] == 1]
-    assert len(moved) == 2  # the file as added (identity), then moved
-    matrix = np.array(moved[-1][1])
-    np.testing.assert_allclose(matrix[:3, :3], np.eye(3), atol=1e-9)  # a move, no turn or scale
-    np.testing.assert_allclose(matrix[:3, 3], expected_shift, rtol=0.03, atol=0.02 * np.linalg.norm(expected_shift))
+    moved = [np.array(p[1]) for p in found["parts"] if p[0] == 1]
+    assert len(moved) == 3  # the file as added (identity), moved, scaled
+    after_move = np.array(found["after_move"])
+    np.testing.assert_allclose(after_move[:3, :3], np.eye(3), atol=1e-9)  # a move, no turn or scale
+    np.testing.assert_allclose(after_move[:3, 3], expected_shift, rtol=0.03,
+                               atol=0.02 * np.linalg.norm(expected_shift))
+    matrix = moved[-1]
+    scale = np.linalg.det(matrix[:3, :3]) ** (1 / 3)
+    assert scale > 1.05  # dragged right: bigger
+    np.testing.assert_allclose(matrix[:3, :3], scale * np.eye(3), atol=1e-9)  # uniform, no turn
+    moved_centre = after_move[:3, :3] @ np.array(found["centre"]) + after_move[:3, 3]
+    np.testing.assert_allclose(matrix[:3, :3] @ np.array(found["centre"]) + matrix[:3, 3], moved_centre,
+                               atol=1e-4)  # scaled about the moved model's centre, which stays
     # the acceptance check: the export is model 1 followed by the second PLY moved by transform.py
     first, other = read_ply(model), read_ply(second)
     assert any("merged.ply" in line for line in found["messages"]), found["messages"]
-    assert_union(tmp_path / "merged.ply", [first, transform_gaussians(other, matrix)])
+    assert_union(tmp_path / "merged.ply", [first, transform_gaussians(other, matrix)], atol=2e-5)
     # the project, baked with no display, is the same union
     assert main(["export", "--project", str(project), "-o", str(tmp_path / "baked.ply")]) == 0
-    assert_union(tmp_path / "baked.ply", [first, transform_gaussians(other, matrix)], atol=1e-6)
+    assert_union(tmp_path / "baked.ply", [first, transform_gaussians(other, matrix)], atol=2e-5)
 
     reopened = run_gui(PRELUDE + f"""
 app = ViewerApp(Paths(out=str(OUT / "again")), project={str(project)!r})
@@ -283,6 +295,9 @@ def test(ctx):
     found["messages"] = app.messages[-8:]
     found["undo"] = len(app.editor.undo_stack)
     testing.capture(ctx, str(OUT / "aligned.png"))
+    app.export.path = str(OUT / "aligned.ply")
+    ctx.set_ref("Edit")
+    ctx.item_click("Export")
 
 run(app, test)
 found["error"] = app.error
@@ -299,3 +314,34 @@ Path(os.environ["RESULT"]).write_text(json.dumps(found))
     angle = np.degrees(np.arccos(np.clip((np.trace(r) - 1) / 2, -1, 1)))
     assert angle < 1.5, angle
     assert np.linalg.norm(back[:3, 3]) < 0.015 * found["span"], back[:3, 3]
+    # the copy's file turned, scaled and moved by transform.py (SH bands rotated) is what Export wrote
+    from training.model.ply_io import read_ply
+    from training.model.transform import transform_gaussians
+
+    assert_union(tmp_path / "aligned.ply", [read_ply(model), transform_gaussians(read_ply(copy), recovered)],
+                 atol=2e-5)
+
+
+def test_a_gizmo_pose_becomes_a_similarity_about_its_centre():
+    """What a drag's start and current gizmo matrices become: a turn made exactly orthonormal, a per-axis scale
+    made uniform (the mean), both about the gizmo's centre (which stays where it is)."""
+    from app.viewer.gizmo import similarity_delta
+    from training.model.transform import split_similarity
+
+    start = np.eye(4)
+    start[:3, 3] = (1.0, 2.0, 3.0)
+    turned = start.copy()
+    turned[:3, :3] = similarity(20.0, (0, 0, 1), 1.0, (0, 0, 0))[:3, :3] + 1e-4  # float32 drift of ImGuizmo
+    d = similarity_delta("rotate", start, turned)
+    s, r, _ = split_similarity(d)
+    assert s == pytest.approx(1.0, abs=1e-12)
+    np.testing.assert_allclose(d[:3, 3] + d[:3, :3] @ start[:3, 3], start[:3, 3], atol=1e-12)  # centre fixed
+    np.testing.assert_allclose(r, similarity(20.0, (0, 0, 1), 1.0, (0, 0, 0))[:3, :3], atol=1e-3)
+    scaled = start.copy()
+    scaled[:3, :3] = np.diag([1.5, 2.0, 2.5])
+    d = similarity_delta("scale", start, scaled)
+    np.testing.assert_allclose(d[:3, :3], 2.0 * np.eye(3), atol=1e-12)
+    np.testing.assert_allclose(d @ np.r_[start[:3, 3], 1.0], np.r_[start[:3, 3], 1.0], atol=1e-12)
+    moved = start.copy()
+    moved[:3, 3] += (0.5, -1.0, 0.0)
+    np.testing.assert_allclose(similarity_delta("translate", start, moved)[:3, 3], (0.5, -1.0, 0.0))

@@ -87,6 +87,8 @@ def object_matrix(app) -> np.ndarray | None:
         m = _translation(box.mean(axis=0))
         m[:3, :3] = np.diag(np.maximum(np.abs(box[1] - box[0]), 1e-6))
         return m
+    if app.source_gaussians is None or app.session.trainer is not None:
+        return None  # the view shows a trainer's model: what is moved is the opened model's, once it is shown
     mask = target_mask(app)
     if mask is None:
         return None
@@ -274,8 +276,11 @@ def gizmo_section(app) -> None:
         imgui.same_line()
     if imgui.radio_button("Off", not st.op):
         st.op = ""
-    if st.op and st.target == "selection" and not app.editor.selected.any():
-        imgui.text_colored(imgui.ImVec4(0.6, 0.6, 0.6, 1.0), "select Gaussians to move them")
+    grey = imgui.ImVec4(0.6, 0.6, 0.6, 1.0)
+    if st.op and st.target != "box" and (app.source_gaussians is None or app.session.trainer is not None):
+        imgui.text_colored(grey, "the gizmo moves the opened model: not while a trainer's model is shown")
+    elif st.op and st.target == "selection" and not app.editor.selected.any():
+        imgui.text_colored(grey, "select Gaussians to move them")
     if imgui.button("Add model to scene..."):
         app.guarded("add model", add_from_dialog, app)
     imgui.set_item_tooltip("another .ply or .splat joins this one: drawn together, exported as one file")
