@@ -1,8 +1,9 @@
 """The viewer's session as a project file and back (app/project.py holds the format): what File > Save project
 and File > Open project call. No imgui here: the panels call these and show the returned lines.
 
-The viewer holds one model; a project may hold several (export merges them). Opening a project shows its first
-model whose files are there and unchanged, and says in one line each which others are not shown.
+A project may hold several models (export merges them). Opening one shows every model whose files are there and
+unchanged, joined into one scene with their transforms (scene_models.py), and says in one line each which others
+are not shown (missing, changed, or embedded in the project).
 
 What the viewer does not hold yet (a model transform from a gizmo, colour edits, the original model for style
 strength) comes back in ``Opened`` for the panels that will hold it, and goes in through ``project_from_app``'s
