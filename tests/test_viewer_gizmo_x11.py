@@ -10,7 +10,7 @@ import pytest
 
 from tests.gizmo_scenes import moved_copy, similarity
 from tests.test_viewer_x11 import LOOK, headless_render, psnr, x11_env
-from tests.viewer_harness import PRELUDE, Xvfb, make_demo_scene, run_gui, xvfb_missing
+from tests.viewer_harness import PRELUDE, Xvfb, check_frame, make_demo_scene, run_gui, xvfb_missing
 
 pytestmark = [pytest.mark.slow, pytest.mark.skipif(bool(xvfb_missing()), reason=xvfb_missing() or "ok")]
 
@@ -111,6 +111,16 @@ def test(ctx):
     found["model_moved"] = float(np.abs(app.editor.model.means[rows] - before[rows]).max())
     found["model_others_still"] = bool(np.array_equal(app.editor.model.means[~rows], before[~rows]))
     found["camera_turned"] = float(np.abs(app.view.camera.rotation - rotation).max())
+    # a pick for the alignment runs a depth pass inside imgui's frame: the window must still show everything
+    open_window(ctx, "Edit")
+    ctx.item_click("Align second by 3 point pairs")
+    ctx.set_ref("")
+    xy = on_screen(app.editor.model.means[rows].astype(float).mean(axis=0))[0]
+    ctx.mouse_move_to_pos(imgui.ImVec2(float(xy[0]), float(xy[1])))
+    ctx.mouse_click(0)
+    settle(ctx, 1.0)
+    np.save(OUT / "after_pick.npy", x_screen())
+    found["picked"] = len(app.gizmo.align.moving)
 
 run(app, test)
 found["error"] = app.error
@@ -134,5 +144,7 @@ Path(os.environ["RESULT"]).write_text(json.dumps(found))
     assert found["before_crop"] > found["after_crop"] == found["expected_crop"] > 0
     assert found["model_moved"] > 0.1 and found["model_others_still"]
     assert found["camera_turned"] == 0.0
+    assert found["picked"] == 1
+    check_frame(np.load(tmp_path / "after_pick.npy"))  # panels and view still on screen after a pick
     for name in ("selection", "crop_box", "second_model", "model_turn"):
         assert (tmp_path / f"gizmo_{name}.png").is_file()

@@ -60,7 +60,13 @@ def pick_point(app, x: float, y: float) -> np.ndarray | None:
     col, row = int(np.floor(x)), int(np.floor(y))
     if not (0 <= col < cam.width and 0 <= row < cam.height):
         return None
-    depth = app.view.renderer.render_arrays(cam, outputs=("depth",), slot=0)["depth"]
+    # imgui's frame has its own framebuffer bound: the depth pass binds the renderer's, so give imgui's back (else
+    # the rest of the frame, panels included, would be drawn where no one sees it)
+    found = app.ctx.detect_framebuffer()
+    try:
+        depth = app.view.renderer.render_arrays(cam, outputs=("depth",), slot=0)["depth"]
+    finally:
+        found.use()
     app.view.dirty = True  # the depth pass used the renderer's targets: the view draws its picture again
     z = float(depth[row, col])
     if z <= 0:
