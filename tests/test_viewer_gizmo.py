@@ -121,6 +121,10 @@ def test(ctx):
     settle(ctx, 0.3)
     found["redo_equal"] = all(np.array_equal(getattr(ed.model, n), after[n]) for n in after)
     found["shown_version"] = app.edit.shown_version == ed.version
+    app.export.path = str(OUT / "moved.ply")
+    open_window(ctx, "Edit")
+    ctx.item_click("Export")
+    app.save_project(str(OUT / "moved.splatproj"))
 
 run(app, test)
 found["error"] = app.error
@@ -142,6 +146,18 @@ Path(os.environ["RESULT"]).write_text(json.dumps(found))
             assert np.array_equal(after[name], before[name]), name  # a move changes only centres
     assert found["undo_equal"] and found["undo_same_dtype"] and found["redo_equal"]
     assert found["shown_version"]
+    # the project keeps the moved rows as a second entry of the same file with the move's transform: baked, the
+    # same Gaussians as the viewer's export (model by model, so compared as sets of rows)
+    from app.cli import main
+
+    assert main(["export", "--project", str(tmp_path / "moved.splatproj"), "-o", str(tmp_path / "baked.ply")]) == 0
+    exported, baked = ply_columns(tmp_path / "moved.ply"), ply_columns(tmp_path / "baked.ply")
+    names = sorted(exported)
+    rows = lambda cols: np.stack([cols[n] for n in names], axis=1)  # noqa: E731
+    a, b = rows(exported), rows(baked)
+    a, b = a[np.lexsort(a.T[::-1])], b[np.lexsort(b.T[::-1])]
+    np.testing.assert_allclose(a, b, rtol=0, atol=1e-6)
+    assert np.allclose(np.sort(exported["x"])[-1], after["means"][:, 0].max(), atol=1e-5)
 
 
 def test_a_second_model_moved_by_the_gizmo_exports_and_bakes_as_one_model(demo_scene, tmp_path):

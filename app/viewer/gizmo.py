@@ -35,6 +35,7 @@ class GizmoState:
     delta: np.ndarray | None = None  # the similarity dragged so far
     mask: np.ndarray | None = None  # the editor rows the drag moves
     matrix: object = None  # the imguizmo Matrix16 the gizmo edits during a drag
+    drawn: bool = False  # the gizmo was drawn in the last frame (ImGuizmo answers "over" from its last pose)
     align: AlignState = field(default_factory=AlignState)
 
 
@@ -122,7 +123,8 @@ def begin_frame() -> None:
 def holds_mouse(app) -> bool:
     """The pointer is on a gizmo handle or a drag of it is under way: the view's canvas must not take the mouse
     (ImGuizmo starts a drag only where no imgui item is hovered), so no orbit and no selection gesture."""
-    return bool(app.gizmo.op) and (app.gizmo.dragging or gz.is_over() or gz.is_using())
+    st = app.gizmo
+    return bool(st.op) and (st.dragging or (st.drawn and (gz.is_over() or gz.is_using())))
 
 
 def left_is_taken(app) -> bool:
@@ -133,6 +135,7 @@ def left_is_taken(app) -> bool:
 def view_gizmo(app, hovered: bool) -> None:
     """Draw and run the gizmo over the view's picture (call after the picture was drawn)."""
     st = app.gizmo
+    st.drawn = False
     if app.editor is None or app.view.camera is None:
         return
     if st.align.active:
@@ -163,6 +166,7 @@ def view_gizmo(app, hovered: bool) -> None:
     operation = {"translate": gz.OPERATION.translate, "rotate": gz.OPERATION.rotate,
                  "scale": gz.OPERATION.scale}[op]
     gz.manipulate(_m16(view), _m16(proj), operation, gz.MODE.world, st.matrix)
+    st.drawn = True
     using = gz.is_using()
     if using and not st.dragging:
         st.dragging, st.start, st.delta = True, object_matrix(app), None
