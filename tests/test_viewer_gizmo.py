@@ -84,6 +84,7 @@ def on_screen(points):
 """
 
 
+@pytest.mark.slow
 def test_gizmo_drag_moves_the_selection_by_the_drag_and_undo_restores_it(demo_scene, tmp_path):
     """G, then a drag from the gizmo's centre (ImGuizmo moves in the screen's plane there): the selected Gaussians
     move so that their centre follows the pointer, the others not at all; the drag is one undo step, and undo
@@ -160,6 +161,7 @@ Path(os.environ["RESULT"]).write_text(json.dumps(found))
     assert np.allclose(np.sort(exported["x"])[-1], after["means"][:, 0].max(), atol=1e-5)
 
 
+@pytest.mark.slow
 def test_a_second_model_moved_by_the_gizmo_exports_and_bakes_as_one_model(demo_scene, tmp_path):
     """A PLY dropped while a model is open joins the scene; the gizmo moves it (model 2 as its target); Export
     writes one PLY that is model 1 and model 2 moved (training/model/transform.py applied to the second file, read
@@ -267,6 +269,7 @@ Path(os.environ["RESULT"]).write_text(json.dumps(found))
     assert not any("not shown" in line for line in reopened["messages"])
 
 
+@pytest.mark.slow
 def test_three_point_alignment_puts_a_moved_copy_back(demo_scene, tmp_path):
     """A copy of the model turned, scaled and shifted by a known similarity is added; three points clicked on the
     copy and the same three on the original (picks: the depth under the cursor) move the copy back onto the
@@ -361,3 +364,21 @@ def test_a_gizmo_pose_becomes_a_similarity_about_its_centre():
     moved = start.copy()
     moved[:3, 3] += (0.5, -1.0, 0.0)
     np.testing.assert_allclose(similarity_delta("translate", start, moved)[:3, 3], (0.5, -1.0, 0.0))
+
+
+def test_the_scene_ledger_maps_source_rows_to_their_files():
+    """Parts tile the source rows: a model of 5, a second of 3, then rows 1 and 3 of the first moved and row 2 of
+    the second: each source row names its file and its row there."""
+    from types import SimpleNamespace
+
+    from app.viewer.scene_models import SceneModels, file_rows
+
+    models = SceneModels.opened("a.ply", 5)
+    models.add_part(models.add_file("b.ply"), np.arange(3), np.eye(4))
+    models.add_part(0, [1, 3], np.eye(4))
+    models.add_part(1, [2], np.eye(4))
+    app = SimpleNamespace(scene_models=models, editor=SimpleNamespace(index=np.array([0, 8, 2, 9, 4, 5, 6, 10])))
+    files, rows = file_rows(app)
+    assert files.tolist() == [0, 0, 0, 0, 0, 1, 1, 1]
+    assert rows.tolist() == [0, 1, 2, 3, 4, 0, 1, 2]
+    assert models.size == 11

@@ -197,6 +197,15 @@ def rows_of_file(app, fid: int) -> np.ndarray:
     return app.scene_models.file_of(ed.index) == fid
 
 
+def file_rows(app, source_rows=None) -> tuple[np.ndarray, np.ndarray]:
+    """For source rows (default: the editor's rows), the scene model each comes from and its row in that file:
+    what per-file data (colour regions, an original model's SH) is indexed by once models were added or moved."""
+    models = app.scene_models
+    rows = np.asarray(app.editor.index if source_rows is None else source_rows, np.int64)
+    by_source_row = np.concatenate([p.rows for p in models.parts])  # the parts tile the source rows in order
+    return models.file_of(rows), by_source_row[rows]
+
+
 def files_shown(app) -> list[int]:
     """The scene's models that have Gaussians in the editor now (undo may have taken one out)."""
     if app.editor is None or not app.scene_models.parts or app.source_gaussians is None:
