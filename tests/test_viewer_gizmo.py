@@ -163,9 +163,9 @@ Path(os.environ["RESULT"]).write_text(json.dumps(found))
 
 @pytest.mark.slow
 def test_a_second_model_moved_by_the_gizmo_exports_and_bakes_as_one_model(demo_scene, tmp_path):
-    """A PLY dropped while a model is open joins the scene; the gizmo moves it (model 2 as its target); Export
-    writes one PLY that is model 1 and model 2 moved (training/model/transform.py applied to the second file, read
-    with plyfile); the project saved from the session bakes to the same file with `splatstyler export --project`,
+    """A PLY dropped while a model is open joins the scene; the gizmo moves, turns (30 degrees along its ring) and
+    scales it (model 2 as its target), each drag as the pointer went; Export writes one PLY that is model 1 and
+    model 2 moved (training/model/transform.py applied to the second file, SH bands turned; read with plyfile); the project saved from the session bakes to the same file with `splatstyler export --project`,
     and opens again in a new session as the same scene."""
     from app.cli import main
     from training.model.ply_io import read_ply
@@ -202,6 +202,21 @@ def test(ctx):
     found["drag_from"] = on_screen(centre)[0].tolist()
     drag(ctx, on_screen(centre)[0], (-40, 30))
     found["after_move"] = app.scene_models.parts[-1].transform.tolist()
+    ctx.key_press(imgui.Key.t)  # turn: ImGuizmo's outer ring (0.06 of the view's height) turns about the view axis
+    settle(ctx, 0.3)
+    c = on_screen(app.editor.model.means[rows].astype(float).mean(axis=0))[0]
+    found["turn_centre"] = app.editor.model.means[rows].astype(float).mean(axis=0).tolist()
+    radius = 0.06 * app.window.view_rect[3]
+    arc = [np.radians(a) for a in np.linspace(-45, -15, 7)]
+    ctx.mouse_move_to_pos(imgui.ImVec2(float(c[0] + radius * np.cos(arc[0])), float(c[1] + radius * np.sin(arc[0]))))
+    settle(ctx, 0.3)
+    ctx.mouse_down(0)
+    for a in arc[1:]:
+        ctx.mouse_move_to_pos(imgui.ImVec2(float(c[0] + radius * np.cos(a)), float(c[1] + radius * np.sin(a))))
+    ctx.mouse_up(0)
+    settle(ctx, 0.5)
+    found["after_turn"] = app.scene_models.parts[-1].transform.tolist()
+    found["forward"] = cam.forward.tolist()
     ctx.key_press(imgui.Key.y)  # scale: the handle at the centre scales uniformly
     settle(ctx, 0.3)
     drag(ctx, on_screen(app.editor.model.means[rows].astype(float).mean(axis=0))[0], (50, 0))
@@ -226,18 +241,27 @@ Path(os.environ["RESULT"]).write_text(json.dumps(found))
     pixel = depth / found["focal"]
     expected_shift = c2w[:, :3] @ np.array([-40 * pixel, 30 * pixel, 0.0])
     moved = [np.array(p[1]) for p in found["parts"] if p[0] == 1]
-    assert len(moved) == 3  # the file as added (identity), moved, scaled
+    assert len(moved) == 4  # the file as added (identity), moved, turned, scaled
     after_move = np.array(found["after_move"])
     np.testing.assert_allclose(after_move[:3, :3], np.eye(3), atol=1e-9)  # a move, no turn or scale
     np.testing.assert_allclose(after_move[:3, 3], expected_shift, rtol=0.03,
                                atol=0.02 * np.linalg.norm(expected_shift))
+    # the turn: 30 degrees along the ring, about the view's axis, around the model's centre (which stays)
+    turn = np.array(found["after_turn"]) @ np.linalg.inv(after_move)
+    angle = np.degrees(np.arccos(np.clip((np.trace(turn[:3, :3]) - 1) / 2, -1, 1)))
+    assert abs(angle - 30.0) < 3.0, angle
+    w, v = np.linalg.eig(turn[:3, :3])
+    axis = np.real(v[:, np.argmin(np.abs(w - 1))])
+    assert abs(axis @ np.array(found["forward"])) > 0.97, axis
+    centre = np.array(found["turn_centre"])
+    np.testing.assert_allclose(turn[:3, :3] @ centre + turn[:3, 3], centre, atol=1e-4)
+    # the scale: uniform, about the centre, no further turn
     matrix = moved[-1]
-    scale = np.linalg.det(matrix[:3, :3]) ** (1 / 3)
+    grow = matrix @ np.linalg.inv(np.array(found["after_turn"]))
+    scale = np.linalg.det(grow[:3, :3]) ** (1 / 3)
     assert scale > 1.05  # dragged right: bigger
-    np.testing.assert_allclose(matrix[:3, :3], scale * np.eye(3), atol=1e-9)  # uniform, no turn
-    moved_centre = after_move[:3, :3] @ np.array(found["centre"]) + after_move[:3, 3]
-    np.testing.assert_allclose(matrix[:3, :3] @ np.array(found["centre"]) + matrix[:3, 3], moved_centre,
-                               atol=1e-4)  # scaled about the moved model's centre, which stays
+    np.testing.assert_allclose(grow[:3, :3], scale * np.eye(3), atol=1e-9)
+    np.testing.assert_allclose(grow[:3, :3] @ centre + grow[:3, 3], centre, atol=1e-4)
     # the acceptance check: the export is model 1 followed by the second PLY moved by transform.py
     first, other = read_ply(model), read_ply(second)
     assert any("merged.ply" in line for line in found["messages"]), found["messages"]
