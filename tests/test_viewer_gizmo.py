@@ -309,8 +309,10 @@ known = np.array({known.tolist()!r})
 def test(ctx):
     wait(ctx, lambda: app.view is not None and app.view.has_model(0), 60, "the model")
     n1 = app.editor.count
-    from app.viewer.gizmo import add_to_scene
-    add_to_scene(app, {str(copy)!r})
+    open_window(ctx, "Edit")
+    ctx.item_input_value("##add model path", {str(copy)!r})
+    ctx.item_click("Add model to scene")
+    found["added"] = app.editor.count
     means = app.editor.model.means.astype(float)
     mid = means.mean(axis=0)
     app.view.camera = ViewerCamera.looking_at(mid + np.array([0.0, -6.0, -34.0]), mid, up=(0.0, -1.0, 0.0))
@@ -347,6 +349,7 @@ found["error"] = app.error
 Path(os.environ["RESULT"]).write_text(json.dumps(found))
 """, tmp_path)
     assert found["error"] == "", found["error"]
+    assert found["added"] == 8000
     assert found["aligning"] and not found["aligning_after"], found["messages"]
     assert found["undo"] == 2  # the model added, the alignment: one step each
     recovered = np.array(found["transform"])  # the copy's file into the scene: should be known^-1

@@ -35,6 +35,7 @@ class GizmoState:
     delta: np.ndarray | None = None  # the similarity dragged so far
     mask: np.ndarray | None = None  # the editor rows the drag moves
     matrix: object = None  # the imguizmo Matrix16 the gizmo edits during a drag
+    add_path: str = ""  # the model to add, typed (the file dialog needs zenity or kdialog)
     drawn: bool = False  # the gizmo was drawn in the last frame (ImGuizmo answers "over" from its last pose)
     align: AlignState = field(default_factory=AlignState)
 
@@ -285,9 +286,18 @@ def gizmo_section(app) -> None:
         imgui.text_colored(grey, "the gizmo moves the opened model: not while a trainer's model is shown")
     elif st.op and st.target == "selection" and not app.editor.selected.any():
         imgui.text_colored(grey, "select Gaussians to move them")
-    if imgui.button("Add model to scene..."):
-        app.guarded("add model", add_from_dialog, app)
-    imgui.set_item_tooltip("another .ply or .splat joins this one: drawn together, exported as one file")
+    button = "Add model to scene"
+    width = imgui.calc_text_size(button).x + 2 * imgui.get_style().frame_padding.x + imgui.get_style().item_spacing.x
+    imgui.set_next_item_width(max(imgui.get_content_region_avail().x - width, 40.0))
+    _, st.add_path = imgui.input_text_with_hint("##add model path", "model to add (path)", st.add_path)
+    imgui.same_line()
+    if imgui.button(button):
+        if st.add_path:
+            app.guarded("add model", add_to_scene, app, st.add_path)
+        else:
+            app.guarded("add model", add_from_dialog, app)
+    imgui.set_item_tooltip("another .ply or .splat joins this one: drawn together, exported as one file (empty "
+                           "path: a file dialog)")
     if len(shown) > 1:
         for fid in shown:
             imgui.bullet_text(f"{names[fid].name}  ({names[fid].path.name})")
