@@ -43,7 +43,9 @@ def test_report_from_a_real_cpu_run_of_every_step(tmp_path):
     raster = steps["raster"]
     assert raster["status"] == "ok" and raster["rows"][0]["backend"] == "cpu" and raster["rows"][0]["fwd_ms"] > 0
     viewer = steps["viewer"]["rows"][0]
-    assert viewer["n"] == 3000 and viewer["frame_f2_ms"] > 0 and viewer["display_path"].startswith("gl-")
+    assert viewer["n"] == 3000 and viewer["frame_f2_ms"] > 0
+    # the chooser's pick: on a CUDA machine it may be the cuda path (it was, on an H100)
+    assert viewer["display_path"].startswith("gl-") or (torch.cuda.is_available() and viewer["display_path"] == "cuda")
     rec = steps["reconstruct"]
     assert rec["status"] == "ok", rec
     assert rec["iterations"] == 40 and rec["minutes"] > 0 and rec["test_psnr"] > 5 and rec["peak_gpu_gib"] is None

@@ -275,3 +275,17 @@ def test_frozen_geometry_changed_in_place_is_not_reused():
     ref = _colour_step(scene, w, h, None, "RGB", scene[4], weights)
     for a, b in zip(got, ref):
         assert torch.equal(a, b)
+
+
+def test_auto_device_follows_an_explicit_backend():
+    """`reconstruct --backend cpu` on a CUDA machine must keep the model on the CPU: the cpu rasterizer takes CPU
+    tensors (bench gpu's CPU run failed on the H100 with 'the cpu rasterizer needs CPU tensors, got cuda:0')."""
+    import torch
+
+    from training.raster.rasterize import resolve_device
+
+    assert resolve_device("auto", "cpu") == torch.device("cpu")
+    assert resolve_device("auto", "cuda") == torch.device("cuda")
+    assert resolve_device("cpu", "auto") == torch.device("cpu")
+    if not torch.cuda.is_available():
+        assert resolve_device("auto") == torch.device("cpu")

@@ -155,3 +155,36 @@ def test_fox_orbit_video_3s_640x360(tmp_path, capsys):
     print(f"{line}; {len(rec.gaussians)} Gaussians; command {seconds:.1f} s")
     assert len(frames) == 90 and all(f.shape == (360, 640, 3) for f in frames)
     assert np.mean([f.mean() for f in frames]) > 5  # the fox is in view, not a black video
+
+
+@pytest.mark.slow
+def test_sigterm_stops_a_video_leaving_no_mp4(demo, tmp_path):
+    """`timeout`, Docker and SLURM stop a long render with SIGTERM: one line, exit 143, and no MP4, whole or half,
+    left where the user looks for it (nor its temporary file)."""
+    gl_or_skip()
+    import os
+    import signal
+    import subprocess
+    import sys
+
+    folder, _ = demo
+    out = tmp_path / "long.mp4"
+    root = Path(__file__).resolve().parents[1]
+    proc = subprocess.Popen([sys.executable, "-m", "app", "video", str(folder / "model.ply"), "--orbit", "--seconds",
+                             "600", "--fps", "30", "--size", "64x48", "-o", str(out)], cwd=root,
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=dict(os.environ))
+    try:
+        t0 = time.time()
+        while time.time() - t0 < 120 and proc.poll() is None and not list(tmp_path.glob(".long.mp4*")):
+            time.sleep(0.2)  # until frames are being encoded into the temporary file
+        assert proc.poll() is None and list(tmp_path.glob(".long.mp4*")), proc.communicate()
+        time.sleep(1.0)
+        proc.send_signal(signal.SIGTERM)
+        _, err = proc.communicate(timeout=60)
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+    assert proc.returncode == 143, err
+    lines = [line for line in err.splitlines() if "SIGTERM" in line]
+    assert len(lines) == 1 and "Traceback" not in err, err
+    assert not out.exists() and list(tmp_path.iterdir()) == [], list(tmp_path.iterdir())

@@ -136,7 +136,42 @@ def runner_params(app):
         io.config_watchdog_warning, io.config_watchdog_kill_test, io.config_watchdog_kill_app = 300, 600, 900
 
     params.callbacks.register_tests = register_tests
+    frame_start = params.callbacks.post_new_frame
+
+    def post_new_frame():
+        if gl_calls:
+            import moderngl
+
+            # the frame's framebuffer: a call that binds another (an offscreen render) must not leave it bound, or
+            # the window would be drawn into that one from then on
+            bound = moderngl.get_context().detect_framebuffer()
+            while gl_calls:
+                fn, box = gl_calls.pop(0)
+                try:
+                    box["value"] = fn()
+                except BaseException as exc:  # noqa: BLE001  (raised again in the test's thread)
+                    box["error"] = exc
+            bound.use()
+        frame_start()
+
+    params.callbacks.post_new_frame = post_new_frame
     return params
+
+
+# The test function runs on the test engine's coroutine thread, where no GL context is current: a GL call made
+# there does nothing (glReadPixels leaves moderngl's buffer uninitialised: what once looked like a band of stray
+# rows in the view's picture). GL work goes to the window's thread through this queue, run at its next frame.
+gl_calls = []
+
+
+def on_gl_thread(ctx, fn):
+    box = {}
+    gl_calls.append((fn, box))
+    while "value" not in box and "error" not in box:
+        ctx.yield_(1)
+    if "error" in box:
+        raise box["error"]
+    return box["value"]
 
 
 def run(app, test):

@@ -164,25 +164,26 @@ def viewer_step(ns: list[int], size: str, repeat: int) -> dict:
     return {"command": "splatstyler bench viewer " + " ".join(argv), "rows": _bench_rows("app.bench.viewer", argv)}
 
 
-def _cli_with_peak_memory(argv: list[str]) -> tuple[int, float | None]:
-    """Run ``splatstyler ARGV`` in this process; its exit status and torch's peak CUDA memory in GiB."""
+def _cli_with_peak_memory(argv: list[str], on_gpu: bool) -> tuple[int, float | None]:
+    """Run ``splatstyler ARGV`` in this process; its exit status and torch's peak CUDA memory in GiB (None for a run
+    on the CPU: 0 GiB would read as a measurement)."""
     import torch
 
     from app.cli import main as cli
 
-    if torch.cuda.is_available():
+    on_gpu = on_gpu and torch.cuda.is_available()
+    if on_gpu:
         torch.cuda.empty_cache()
         torch.cuda.reset_peak_memory_stats()
     rc = cli(argv)
-    peak = torch.cuda.max_memory_allocated() / 2**30 if torch.cuda.is_available() else None
-    return rc, peak
+    return rc, torch.cuda.max_memory_allocated() / 2**30 if on_gpu else None
 
 
 def reconstruct_step(data: Path, out: Path, generated: bool, backend: str = "cuda", preset: str = "paper",
                      extra: list[str] | None = None) -> dict:
     argv = ["reconstruct", str(data), "-o", str(out), "--preset", preset, "--backend", backend] + (
         ["--downscale", "1"] if generated else []) + list(extra or [])
-    rc, peak = _cli_with_peak_memory(argv)
+    rc, peak = _cli_with_peak_memory(argv, backend == "cuda")
     if rc != 0:
         raise RuntimeError(f"splatstyler {' '.join(argv)} exited with status {rc}")
     report = json.loads((out / "report.json").read_text())
@@ -197,7 +198,7 @@ def stylize_step(model: Path, data: Path, style: Path, out: Path, backend: str =
                  preset: str = "paper", extra: list[str] | None = None) -> dict:
     argv = ["stylize", str(model), "--data", str(data), "--style", str(style), "-o", str(out), "--preset", preset,
             "--backend", backend, "--device", device] + list(extra or [])
-    rc, peak = _cli_with_peak_memory(argv)
+    rc, peak = _cli_with_peak_memory(argv, device == "cuda")
     if rc != 0:
         raise RuntimeError(f"splatstyler {' '.join(argv)} exited with status {rc}")
     report = json.loads((out / "report.json").read_text())

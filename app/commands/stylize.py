@@ -98,7 +98,7 @@ def config_from_args(args: argparse.Namespace):
         sinkhorn_iters=args.sinkhorn_iters, lambda_style=args.lambda_style, lambda_content=args.lambda_content,
         lr=args.lr, iters_per_view=args.iters_per_view, min_total_iters=args.min_total_iters,
         scene_kind=args.scene_kind, view_order=args.view_order, seed=args.seed, virtual_views=args.virtual_views,
-        dc_only=args.dc_only, params=args.params, preset=args.preset or default_preset(args.device),
+        dc_only=args.dc_only, params=args.params, preset=args.preset or default_preset(args.device, args.backend),
         max_side=args.max_side,
         color_transfer=not args.no_color_transfer, backend=args.backend, device=args.device)
     try:
@@ -125,9 +125,9 @@ class Measure:
         return measure_stylizer(stylizer, original=stylizer.input_gaussians(), max_pairs=self.max_pairs)
 
 
-def default_preset(device: str) -> str:
+def default_preset(device: str, backend: str | None = None) -> str:
     """paper on CUDA, quick on a CPU (the paper's schedule at full size takes hours there)."""
-    if device == "cpu":
+    if device == "cpu" or backend == "cpu":
         return "quick"
     import torch
 

@@ -6,6 +6,10 @@ reconstruction or a stylization runs live beside the view, with sliders for the 
 crop box or one model of the scene; File > Add model (or a .ply dropped on the window while a model is open) joins
 another model to the scene, to align by the gizmo or by three point pairs and export as one file. Closing the window (or Ctrl-C) stops the trainer and saves: a reconstruction's
 checkpoint and PLY, a stylization's current model, under the output folder.
+
+The "Scale and up" panel gives the scene its real size (two points picked on the model, a known length typed) and
+its up axis (a picked floor, a plane fitted around a picked point, or the dataset cameras' mean up); both move the
+model and the cameras, undo with Ctrl+Z, are saved in the project and applied by ``export --project``.
 """
 
 from __future__ import annotations

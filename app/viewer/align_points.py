@@ -3,7 +3,8 @@ point of the other model where it belongs, three times; the similarity that maps
 three (Umeyama's least-squares solution: rotation, uniform scale, translation) moves the model, as one undo step.
 
 A pick is the surface under the cursor: the view's expected depth there (the renderer's depth pass, the same
-splats the view draws) unprojected through the view's camera.
+splats the view draws) unprojected through the view's camera (app/viewer/world_edit.py's pick, which the measure
+tools use too).
 """
 
 from __future__ import annotations
@@ -52,39 +53,17 @@ def similarity_from_pairs(src, dst) -> np.ndarray:
     return m
 
 
-def pick_point(app, x: float, y: float) -> np.ndarray | None:
-    """The world point of the surface under framebuffer pixel (x, y) of the view, or None where nothing is drawn."""
-    from app.viewer.edit_panel import view_camera
-
-    cam = view_camera(app)
-    col, row = int(np.floor(x)), int(np.floor(y))
-    if not (0 <= col < cam.width and 0 <= row < cam.height):
-        return None
-    # imgui's frame has its own framebuffer bound: the depth pass binds the renderer's, so give imgui's back (else
-    # the rest of the frame, panels included, would be drawn where no one sees it)
-    found = app.ctx.detect_framebuffer()
-    try:
-        depth = app.view.renderer.render_arrays(cam, outputs=("depth",), slot=0)["depth"]
-    finally:
-        found.use()
-    app.view.dirty = True  # the depth pass used the renderer's targets: the view draws its picture again
-    z = float(depth[row, col])
-    if z <= 0:
-        return None
-    p_cam = np.array([(x - cam.cx) / cam.fx * z, (y - cam.cy) / cam.fy * z, z])
-    c2w = np.linalg.inv(np.asarray(cam.world_to_camera, np.float64))
-    return c2w[:3, :3] @ p_cam + c2w[:3, 3]
-
-
 def add_pick(app, x: float, y: float, fid: int) -> str:
     """A click while aligning: the next point of the pair (moving, then fixed); the third pair moves model ``fid``.
     Returns the line for the user."""
+    from app.viewer.edit_panel import view_camera
     from app.viewer.scene_models import rows_of_file, transform_rows
+    from app.viewer.world_edit import pick
 
     st = app.gizmo.align
-    point = pick_point(app, x, y)
+    point = pick(app, view_camera(app), x, y)
     if point is None:
-        return "nothing under the cursor to pick"
+        return ""  # pick said why
     (st.moving if st.next_is_moving() else st.fixed).append(point)
     if len(st.fixed) < PAIRS:
         which = "on the model to move" if st.next_is_moving() else "where it belongs (on the other model)"

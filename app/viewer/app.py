@@ -83,6 +83,9 @@ class ViewerApp(RunsMixin):
                                       stylize=StylizeConfig(preset="quick", **(stylize_overrides or {})))
         self.window = WindowState()
         self.project = ProjectState(path=project or "")
+        from app.viewer.world_edit import WorldState
+
+        self.world = WorldState()  # the measure and up tools (world_edit.py)
         self.original: ModelSnapshot | None = None  # the model before stylization (split view, right: stylized)
         self.model_info: dict[str, Any] = {}
         self.messages: list[str] = []  # one-line messages for the user, newest last
@@ -155,6 +158,9 @@ class ViewerApp(RunsMixin):
             raise ValueError(f"{path}: the scene has no cameras")
         self.scene = Scene(cameras=scene.cameras, path=str(path))
         self.paths.data = str(path)
+        from app.viewer.world_edit import sync_world
+
+        sync_world(self)  # the cameras in the scene's world (measure and up tools) before the view is placed
         self.order_preview = None
         if self.view is not None:
             self._place_camera()
@@ -334,7 +340,9 @@ class ViewerApp(RunsMixin):
         from app.viewer.camera_control import ViewerCamera
 
         if self.scene.cameras:
-            self.view.camera = ViewerCamera.from_dataset(self.scene.cameras)
+            from app.viewer.world_edit import scene_up
+
+            self.view.camera = ViewerCamera.from_dataset(self.scene.cameras, up=scene_up(self))  # levelled: -y
             self.view.moved()
             self.update_overlays()
         elif self.static_model is not None:
@@ -382,6 +390,9 @@ class ViewerApp(RunsMixin):
     # ------------------------------------------------------------------ per frame
     def sync(self) -> None:
         """Drain the session's news and take a new snapshot when one is due."""
+        from app.viewer.world_edit import sync_world
+
+        sync_world(self)  # the dataset cameras follow the scene's world transform (and its undo)
         for item in self.session.poll():
             if isinstance(item, SessionMessage):
                 if item.kind == "stage":

@@ -45,10 +45,13 @@ class ViewerCamera:
 
     # ------------------------------------------------------------------ construction
     @classmethod
-    def from_dataset(cls, cameras: list[Camera], target: np.ndarray | None = None) -> "ViewerCamera":
+    def from_dataset(cls, cameras: list[Camera], target: np.ndarray | None = None,
+                     up: np.ndarray | None = None) -> "ViewerCamera":
         """At the first dataset camera, looking at ``target`` (default: the point the cameras look at most), upright:
-        the cameras' mean up is up (a photo held at a slant does not tilt the first view)."""
-        up = -np.mean([c.camera_to_world[:3, 1] for c in cameras], axis=0)
+        ``up``, when the scene's up is known (levelled), else the cameras' mean up (a photo held at a slant does not
+        tilt the first view)."""
+        if up is None:
+            up = -np.mean([c.camera_to_world[:3, 1] for c in cameras], axis=0)
         if np.linalg.norm(up) < 1e-6:
             up = np.array([0.0, -1.0, 0.0])
         first = cls.from_camera(cameras[0], up=up)

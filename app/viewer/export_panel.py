@@ -23,7 +23,9 @@ def model_to_export(app):
     if trainer is not None:
         return trainer_model(trainer)
     if app.editor is not None:
-        return app.edited_gaussians()
+        from app.viewer.world_edit import with_world
+
+        return with_world(app, app.edited_gaussians())  # scaled and levelled as shown (measure tools)
     raise ValueError("no model to export: open one or run a reconstruction")
 
 

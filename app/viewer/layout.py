@@ -32,6 +32,7 @@ def dockable_windows(app) -> list:
     """Every panel, by name (the GUI tests address them so), in the dock it starts in; the first of a dock is the
     tab in front."""
     from app.viewer.edit_panel import edit_panel
+    from app.viewer.measure_panel import measure_panel
     from app.viewer.path_panel import path_panel
     from app.viewer.scene_panel import scene_panel
     from app.viewer.style_panel import style_panel
@@ -53,6 +54,7 @@ def dockable_windows(app) -> list:
     view.include_in_view_menu = False
     return [view,
             window("Scene", LEFT, scene_panel), window("Edit", LEFT, edit_panel),
+            window("Scale and up", LEFT, measure_panel),  # the measure and up tools
             window("Camera path", LEFT, path_panel), window("Messages", LEFT_BOTTOM, messages_panel),
             window("Training", RIGHT, training_panel), window("Style", RIGHT, style_panel),
             window("View order", RIGHT_BOTTOM, view_order_panel)]

@@ -19,6 +19,7 @@ from pathlib import Path
 import numpy as np
 
 from app.project import FileRef, ModelEntry, Project, open_project
+from app.viewer.world_edit import open_with_world, world_of
 from training.model.colour_edit import ColourEdits
 
 
@@ -78,7 +79,7 @@ def project_from_app(app, layout: str = "", transform=None, colour: ColourEdits 
                    painting=FileRef(Path(app.paths.style)) if app.paths.style else None, stylize=stylize,
                    camera=camera, camera_distance=distance, path_keys=list(app.path.keys),
                    path_duration=app.path.seconds, path_fps=app.path.fps, path_loop=app.path.loop, layout=layout,
-                   up=np.asarray(up, float))
+                   up=np.asarray(up, float), world=world_of(app))
 
 
 def apply_project(app, path: str | Path) -> Opened:
@@ -120,6 +121,7 @@ def apply_project(app, path: str | Path) -> Opened:
         ed.undo_stack.clear()
         ed.redo_stack.clear()
         ed.version += 1
+        open_with_world(app, project.world)  # the scale and up axis the measure tools set
         opened.entry = entry
         from app.viewer.scene_models import open_project_models
 

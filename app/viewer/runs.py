@@ -73,7 +73,9 @@ class RunsMixin:
             model = self.out_dir() / "edited_model.ply"
             model.parent.mkdir(parents=True, exist_ok=True)
             write_ply(model, self.edited_gaussians())
-        self.original = self.static_model
+        from app.viewer.world_edit import in_file_frame
+
+        self.original = in_file_frame(self, self.static_model)  # the run works in the file's (dataset's) frame
         self.error = ""
         self.session.start([stylize_stage(self.paths.data, self.paths.style, next_run_dir(self.out_dir()),
                                           config=self._stylize_config_copy(), model=model,

@@ -12,6 +12,10 @@ alignment) appends, for each part the moved rows came from, a new part with the 
 editor's rows at it. Source rows are only ever appended, so every state on the undo stack still indexes the same
 rows: undo of a move restores the editor's earlier model object, bit for bit, and needs nothing from here.
 
+**The world.** The editor's model is the source rows moved by the scene's world transform (the measure and up
+tools, app/viewer/world_edit.py; identity until they are used), so a move made in the view (a gizmo drag, picked
+points) is a move in the world: on the source rows it is that move seen from the file's side, W^-1 D W.
+
 A project (File > Save project) gets one entry per part the editor still shows: the file, its rows kept, selected
 and hidden, and the part's transform, which is the format's "several models with transforms"; `splatstyler export
 --project` bakes and merges them (app/project_bake.py) into what the viewer shows.
@@ -124,14 +128,36 @@ def with_rows(model, mask: np.ndarray, arrays: dict[str, np.ndarray]):
     return replace(model, version=v, geometry_version=v, **out)
 
 
+def world(app) -> np.ndarray:
+    from app.viewer.world_edit import world_of
+
+    return world_of(app)
+
+
+def in_world(app, g):
+    """Source Gaussians as the view shows them (moved by the scene's world; the identity returns ``g``)."""
+    return transform_gaussians(g, world(app))
+
+
+def source_move(app, matrix) -> np.ndarray:
+    """The move ``matrix`` (made in the view's world) as a move of the source rows: W^-1 D W."""
+    w = world(app)
+    if np.array_equal(w, np.eye(4)):
+        return np.asarray(matrix, np.float64)
+    return np.linalg.inv(w) @ np.asarray(matrix, np.float64) @ w
+
+
 def moved_arrays(app, mask: np.ndarray, matrix) -> dict[str, np.ndarray]:
-    """What the editor's rows at ``mask`` become when moved by ``matrix`` (the drag preview; nothing changes)."""
+    """What the editor's rows at ``mask`` become when moved by ``matrix`` in the view's world (the drag preview;
+    nothing changes)."""
     rows = torch.as_tensor(app.editor.index[mask], dtype=torch.long)
-    return snapshot_arrays(transform_gaussians(app.source_gaussians.subset(rows), matrix))
+    return snapshot_arrays(in_world(app, transform_gaussians(app.source_gaussians.subset(rows),
+                                                             source_move(app, matrix))))
 
 
 def transform_rows(app, mask, matrix) -> None:
-    """Move the editor's Gaussians at ``mask`` by the similarity ``matrix`` (4x4): one undo step."""
+    """Move the editor's Gaussians at ``mask`` by the similarity ``matrix`` (4x4, in the view's world): one undo
+    step."""
     from app.project_bake import merge
 
     ed = _require_ledger(app)
@@ -142,6 +168,7 @@ def transform_rows(app, mask, matrix) -> None:
         raise ValueError("nothing to move: select Gaussians first")
     matrix = np.asarray(matrix, np.float64)
     split_similarity(matrix)  # a similarity or a one-line refusal, before anything changes
+    matrix = source_move(app, matrix)
     models = app.scene_models
     source_rows = ed.index[mask]
     part_ids = models.part_of(source_rows)
@@ -156,7 +183,7 @@ def transform_rows(app, mask, matrix) -> None:
         new_part = models.add_part(part.file, part.rows[rows - part.start], matrix @ part.transform)
         new_rows[at] = new_part.start + np.arange(len(rows))
     app.source_gaussians = merge([app.source_gaussians] + pieces)
-    arrays = snapshot_arrays(app.source_gaussians.subset(torch.as_tensor(new_rows, dtype=torch.long)))
+    arrays = snapshot_arrays(in_world(app, app.source_gaussians.subset(torch.as_tensor(new_rows, dtype=torch.long))))
     ed._push()
     ed.model = with_rows(ed.model, mask, arrays)
     index = ed.index.copy()
@@ -186,7 +213,8 @@ def add_model(app, path: str, select: bool = True):
     ed._push()
     if select:
         ed.selected = np.zeros_like(ed.selected)
-    add_model_rows(ed, snapshot_arrays(g), g.sh_degree, np.full(n, select), np.zeros(n, bool), start + np.arange(n))
+    add_model_rows(ed, snapshot_arrays(in_world(app, g)), g.sh_degree, np.full(n, select), np.zeros(n, bool),
+                   start + np.arange(n))
     ed.version += 1
     return fid
 
@@ -251,8 +279,9 @@ def open_project_models(app, opened) -> None:
     models = app.scene_models
     first = models.files[0]
     first.colour, first.original = entry.colour, str(entry.original.path) if entry.original else None
-    if not np.allclose(entry.transform, np.eye(4), rtol=0, atol=0):
-        transform_rows(app, np.ones(ed.count, bool), entry.transform)
+    if not np.array_equal(entry.transform, np.eye(4)):
+        w = world(app)  # the world is already on the editor's model: the entry's move goes under it
+        transform_rows(app, np.ones(ed.count, bool), w @ entry.transform @ np.linalg.inv(w))
     for other in [m for m in opened.not_shown if m.usable and m.file.embedded is None]:
         g = read_model(other.file.path)
         rows = np.arange(len(g)) if other.kept is None else other.kept
@@ -269,7 +298,7 @@ def open_project_models(app, opened) -> None:
         start = models.add_part(fid, rows, other.transform).start
         app.source_gaussians = merge([app.source_gaussians, g])
         n = len(rows)
-        add_model_rows(ed, snapshot_arrays(g), g.sh_degree,
+        add_model_rows(ed, snapshot_arrays(in_world(app, g)), g.sh_degree,
                        other.selected if other.selected is not None and len(other.selected) == n else np.zeros(n, bool),
                        other.hidden if other.hidden is not None and len(other.hidden) == n else np.zeros(n, bool),
                        start + np.arange(n))

@@ -85,6 +85,7 @@ class EditState:
     selected: np.ndarray
     hidden: np.ndarray
     index: np.ndarray
+    extras: dict = field(default_factory=dict)
 
 
 @dataclass
@@ -100,6 +101,9 @@ class Editor:
     version: int = 0  # bumped by every change the view must show
     on_keep: object = None  # called with each keep-mask (and the structure it was made on): a running trainer
     structure_version: int = 0  # the trainer's structure the rows refer to, counting the keeps handed to it
+    # what else an edit step carries, restored by undo with the model (e.g. "world": the scene's transform that
+    # the measure and up tools set); values are never changed in place, only replaced
+    extras: dict = field(default_factory=dict)
 
 
     def __post_init__(self) -> None:
@@ -161,12 +165,23 @@ class Editor:
         self.version += 1
         return keep
 
+    def change(self, model, **extras) -> None:
+        """Replace the model by one with the same Gaussians in the same order (moved, rescaled) and set
+        ``extras``: one undoable step."""
+        if len(model) != len(self.model):
+            raise ValueError(f"a change must keep the {len(self.model)} Gaussians, got {len(model)}")
+        self._push()
+        self.model = model
+        self.extras = {**self.extras, **extras}
+        self.version += 1
+
     # ------------------------------------------------------------------ history
     def _state(self) -> EditState:
-        return EditState(self.model, self.selected.copy(), self.hidden.copy(), self.index)
+        return EditState(self.model, self.selected.copy(), self.hidden.copy(), self.index, dict(self.extras))
 
     def _restore(self, state: EditState) -> None:
         self.model, self.selected, self.hidden, self.index = state.model, state.selected, state.hidden, state.index
+        self.extras = dict(state.extras)
         self.version += 1
 
     def _push(self) -> None:

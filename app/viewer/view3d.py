@@ -8,6 +8,7 @@ picture stays in an offscreen texture that every frame copies to the window for 
 
 from __future__ import annotations
 
+import threading
 import time
 from dataclasses import dataclass
 
@@ -72,6 +73,7 @@ class View3D:
         self.display = None  # display_path.DisplayChoice, made at the first draw of a model
         self.display_override = "auto"  # auto | a path from display_path.PATHS (or PATH/FORMAT)
         self.cuda = None  # display_cuda.CudaDisplay when the chosen path is cuda
+        self.gl_thread = threading.get_ident()  # the only thread on which the context is current
 
     # ------------------------------------------------------------------ models
     def show(self, snap, slot: int = 0) -> bool:
@@ -291,6 +293,9 @@ class View3D:
         """(H, W, 3) uint8 of the last picture, top row first."""
         if self._fbo is None:
             return None
+        if threading.get_ident() != self.gl_thread:
+            # elsewhere no context is current: glReadPixels does nothing and the bytes would be uninitialised memory
+            raise RuntimeError("View3D.read must run on the thread that owns the GL context")
         data = self._fbo.read(components=3, alignment=1)
         return np.frombuffer(data, np.uint8).reshape(self._size[1], self._size[0], 3)[::-1].copy()
 

@@ -65,4 +65,7 @@ def _contents(app) -> None:
                             imgui.ImVec2(origin.x + width, origin.y + height), imgui.ImVec2(0, 1), imgui.ImVec2(1, 0))
     if left_free:
         handle_gesture(app, hovered, active)  # drawn over the picture
+    from app.viewer.measure_panel import handle_pick
+
+    handle_pick(app, hovered)  # the measure and up tools' picks, drawn over the picture
     gizmo.view_gizmo(app, hovered)

@@ -47,11 +47,14 @@ def _have_gsplat() -> bool:
     return True
 
 
-def resolve_device(name: str) -> torch.device:
-    """The torch device for ``name`` ("auto", "cpu", "cuda", ...). "auto" picks CUDA only where the fast CUDA
-    rasterizer (gsplat) is there too: on CUDA without gsplat only the slow torch reference could render, and the
-    numba CPU backend beats it."""
+def resolve_device(name: str, backend: str = "auto") -> torch.device:
+    """The torch device for ``name`` ("auto", "cpu", "cuda", ...). "auto" follows an explicit ``backend`` (the cpu
+    rasterizer takes CPU tensors, the cuda one CUDA tensors: `--backend cpu` on a CUDA machine must not put the model
+    on the GPU); otherwise it picks CUDA only where the fast CUDA rasterizer (gsplat) is there too: on CUDA without
+    gsplat only the slow torch reference could render, and the numba CPU backend beats it."""
     if name == "auto":
+        if backend in ("cpu", "cuda"):
+            return torch.device(backend)
         return torch.device("cuda" if torch.cuda.is_available() and _have_gsplat() else "cpu")
     return torch.device(name)
 

@@ -216,7 +216,7 @@ class Reconstructor(LiveTrainer):
             gaussians, self.init_source = initial_gaussians(scene, config)
         else:
             self.init_source = "given"
-        self.gaussians = gaussians.detached().to(resolve_device(config.device))
+        self.gaussians = gaussians.detached().to(resolve_device(config.device, config.backend))
         for t in self.gaussians.parameters().values():
             t.requires_grad_(True)
         self.device = self.gaussians.device

@@ -86,7 +86,7 @@ class Stylizer(LiveTrainer):
                  model_name: str | Path | None = None, check_match: bool = True, mask=None):
         self.config = config or StylizeConfig()
         self.config.validate()
-        self.device = resolve_device(self.config.device)
+        self.device = resolve_device(self.config.device, self.config.backend)
         self.times = StageTimes()
         t0 = time.perf_counter()
         if not scene.cameras:
