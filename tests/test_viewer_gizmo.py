@@ -409,3 +409,65 @@ def test_the_scene_ledger_maps_source_rows_to_their_files():
     assert files.tolist() == [0, 0, 0, 0, 0, 1, 1, 1]
     assert rows.tolist() == [0, 1, 2, 3, 4, 0, 1, 2]
     assert models.size == 11
+
+
+@pytest.mark.slow
+def test_moves_under_a_scaled_and_turned_world_are_moves_in_the_view(demo_scene, tmp_path):
+    """After the measure and up tools gave the scene a world transform W, a second model joins and the gizmo drags
+    it: on screen it moves by the dragged pixels (a move in the world), the Export and `export --project` both
+    write W applied to model 1 and to the second file moved by its part's transform, and the view shows exactly
+    that."""
+    from app.cli import main
+    from training.model.ply_io import read_ply
+    from training.model.transform import transform_gaussians
+
+    _, _, model = demo_scene
+    second = moved_copy(model, similarity(0.0, (0, 1, 0), 1.0, (15.0, 0.0, 0.0)), tmp_path / "second.ply")
+    world = similarity(30.0, (0, 1, 0), 2.0, (1.0, -2.0, 3.0))
+    found = run_gui(PRELUDE + DRAG + f"""
+from app.viewer.camera_control import ViewerCamera
+from app.viewer.world_edit import set_world
+app = ViewerApp(Paths(model={str(model)!r}, out=str(OUT / "out")))
+
+def test(ctx):
+    wait(ctx, lambda: app.view is not None and app.view.has_model(0), 60, "the model")
+    n1 = app.editor.count
+    on_gl_thread(ctx, lambda: set_world(app, np.array({world.tolist()!r})))
+    app.on_drop(None, [{str(second)!r}])
+    ctx.yield_(3)
+    means = app.editor.model.means.astype(float)
+    mid = means.mean(axis=0)
+    app.view.camera = ViewerCamera.looking_at(mid + np.array([0.0, -16.0, -80.0]), mid, up=(0.0, -1.0, 0.0))
+    app.view.moved()
+    settle(ctx, 0.5)
+    ctx.set_ref("")
+    ctx.key_press(imgui.Key.g)
+    settle(ctx, 0.3)
+    rows = np.arange(app.editor.count) >= n1
+    centre = means[rows].mean(axis=0)
+    start = on_screen(centre)[0]
+    drag(ctx, start, (-40, 30))
+    after = app.editor.model.means.astype(float)
+    found["moved_px"] = (on_screen(after[rows].mean(axis=0))[0] - start).tolist()
+    found["still"] = bool(np.array_equal(app.editor.model.means[~rows], means[~rows].astype(np.float32)))
+    np.save(OUT / "shown.npy", app.editor.model.means)
+    found["part"] = app.scene_models.parts[-1].transform.tolist()
+    app.export.path = str(OUT / "merged.ply")
+    open_window(ctx, "Edit")
+    ctx.item_click("Export")
+    app.save_project(str(OUT / "world.splatproj"))
+
+run(app, test)
+found["error"] = app.error
+Path(os.environ["RESULT"]).write_text(json.dumps(found))
+""", tmp_path)
+    assert found["error"] == "", found["error"]
+    np.testing.assert_allclose(found["moved_px"], [-40, 30], atol=1.0)
+    assert found["still"]
+    part = np.array(found["part"])
+    expected = [transform_gaussians(read_ply(model), world), transform_gaussians(read_ply(second), world @ part)]
+    assert_union(tmp_path / "merged.ply", expected, atol=5e-5)
+    assert main(["export", "--project", str(tmp_path / "world.splatproj"), "-o", str(tmp_path / "baked.ply")]) == 0
+    assert_union(tmp_path / "baked.ply", expected, atol=5e-5)
+    shown = np.load(tmp_path / "shown.npy")
+    np.testing.assert_allclose(shown, np.concatenate([g.means.numpy() for g in expected]), atol=5e-5)
