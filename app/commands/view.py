@@ -2,7 +2,9 @@
 
 Opens a window with the model (a 3DGS PLY or .splat), the dataset's cameras and the painting; from its panels a
 reconstruction or a stylization runs live beside the view, with sliders for the stylization's settings.
-``--run`` starts one at once. Closing the window (or Ctrl-C) stops the trainer and saves: a reconstruction's
+``--run`` starts one at once. In the Edit panel a gizmo (keys G, T, Y) moves, turns and scales the selection, the
+crop box or one model of the scene; File > Add model (or a .ply dropped on the window while a model is open) joins
+another model to the scene, to align by the gizmo or by three point pairs and export as one file. Closing the window (or Ctrl-C) stops the trainer and saves: a reconstruction's
 checkpoint and PLY, a stylization's current model, under the output folder.
 
 The Edit panel selects (rectangle, brush, lasso, box, sphere; by colour, visible surface, opacity, size and

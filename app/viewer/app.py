@@ -17,7 +17,9 @@ from typing import Any
 import numpy as np
 
 from app.viewer.colour_view import ColourState, displayed, show_run_colours
+from app.viewer.gizmo import GizmoState
 from app.viewer.runs import RunsMixin
+from app.viewer.scene_models import SceneModels
 from app.viewer.select_tools_panel import SelectToolSettings
 from app.viewer.session import LiveSession, SessionMessage
 from app.viewer.state import (CameraPathState, EditTools, ExportSettings, ProjectState, TrainingState,
@@ -73,6 +75,8 @@ class ViewerApp(RunsMixin):
         self.style_image: np.ndarray | None = None
         self.editor = None  # selection.Editor over the opened model (shown when no trainer runs)
         self.source_gaussians = None  # the opened model as read, raw parameters (what edits index into)
+        self.scene_models = SceneModels()  # which model file and transform each source row comes from
+        self.gizmo = GizmoState()
         out = Path(self.paths.out)
         self.edit = EditTools()
         self.colour = ColourState()  # the Colour panel's original model and shown colours (colour_view.py)
@@ -138,6 +142,7 @@ class ViewerApp(RunsMixin):
 
         g = read_splat(p) if p.suffix.lower() == ".splat" else read_ply(p)
         self.source_gaussians = g
+        self.scene_models = SceneModels.opened(p, len(g))
         self.training.base_model = str(p)
         self.editor = Editor(snapshot_of(g, version=-int(time.time() * 1000) % 1_000_000_000))
         self.edit.shown_version = None
@@ -171,7 +176,13 @@ class ViewerApp(RunsMixin):
         folder or transforms.json as the dataset."""
         p = Path(path)
         suffix = p.suffix.lower()
-        if suffix in (".ply", ".splat"):
+        if suffix in (".ply", ".splat") and self.source_gaussians is not None:
+            # joined, not replacing: a drop beside an open model is most often a part of the same scene, and
+            # Ctrl+Z takes it out again, while a replaced model's edits would be gone (File > Open model replaces)
+            from app.viewer.gizmo import add_to_scene
+
+            add_to_scene(self, path)
+        elif suffix in (".ply", ".splat"):
             self.open_model(path)
         elif suffix == ".splatproj":
             self.open_project(path)
@@ -269,6 +280,7 @@ class ViewerApp(RunsMixin):
             raise ValueError("no running trainer to edit")
         self.editor = Editor(trainer.snapshot(), on_keep=self._keep_live)
         self.source_gaussians = None
+        self.scene_models = SceneModels()
         self.edit.live = True
         self.say("editing the running trainer's model: deletions and crops apply to it and cannot be undone")
 
@@ -619,6 +631,9 @@ class ViewerApp(RunsMixin):
             (self.session.resume if self.session.status().state == "paused" else self.session.pause)()
         if imgui.is_key_pressed(k.delete, False) and self.editor is not None:
             self.guarded("delete", self.editor.delete)
+        from app.viewer.gizmo import gizmo_keys
+
+        gizmo_keys(self)
 
     @staticmethod
     def editor_shortcut_held() -> bool:

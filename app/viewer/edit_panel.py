@@ -134,6 +134,9 @@ def edit_panel(app) -> None:
         app.guarded("select", lambda: ed.select(sel.in_sphere(ed.model.means, sphere[0], sphere[1]),
                                                 app.edit.select_mode))
     select_tools_panel.more_selections(app)
+    from app.viewer.gizmo import gizmo_section
+
+    gizmo_section(app)
     imgui.separator_text("Edits")
     for label, action in (("Hide", ed.hide), ("Show all", ed.show_all), ("Delete", ed.delete)):
         if imgui.button(label):

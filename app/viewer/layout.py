@@ -131,6 +131,10 @@ def menus(app) -> None:
         for label, attr in (("Open model...", "model"), ("Open dataset...", "data"), ("Open painting...", "style")):
             if imgui.menu_item(label, "", False)[0]:
                 app.guarded("open", app.open_from_dialog, attr)
+        if imgui.menu_item("Add model to scene...", "", False)[0]:
+            from app.viewer.gizmo import add_from_dialog
+
+            app.guarded("add model", add_from_dialog, app)
         imgui.separator()
         if imgui.menu_item("Open project...", "", False)[0]:
             app.guarded("open project", app.open_from_dialog, "project")

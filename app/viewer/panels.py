@@ -7,7 +7,8 @@ from imgui_bundle import imgui
 KEYS = [("left drag", "orbit"), ("right / middle drag", "pan"), ("wheel", "zoom"), ("W A S D", "fly"),
         ("Q / E", "down / up"), ("Z / C", "roll"), ("N", "snap to the nearest dataset camera"), ("R", "reset view"),
         ("space", "pause / resume training"), ("Ctrl+Z / Ctrl+Y", "undo / redo an edit"),
-        ("Delete", "delete the selection"), ("H or F1", "this help")]
+        ("Delete", "delete the selection"), ("G / T / Y", "gizmo: move / turn / scale (again: off)"),
+        ("H or F1", "this help")]
 
 
 def help_overlay(app) -> None:

@@ -1,8 +1,9 @@
 """The viewer's session as a project file and back (app/project.py holds the format): what File > Save project
 and File > Open project call. No imgui here: the panels call these and show the returned lines.
 
-The viewer holds one model; a project may hold several (export merges them). Opening a project shows its first
-model whose files are there and unchanged, and says in one line each which others are not shown.
+A project may hold several models (export merges them). Opening one shows every model whose files are there and
+unchanged, joined into one scene with their transforms (scene_models.py), and says in one line each which others
+are not shown (missing, changed, or embedded in the project).
 
 What the viewer does not hold yet (a model transform from a gizmo, colour edits, the original model for style
 strength) comes back in ``Opened`` for the panels that will hold it, and goes in through ``project_from_app``'s
@@ -56,7 +57,11 @@ def project_from_app(app, layout: str = "", transform=None, colour: ColourEdits 
     (``imgui.save_ini_settings_to_memory()``). ``carry``: the models of an opened project the viewer did not show
     (``Opened.not_shown``), written back unchanged so saving loses none of them."""
     models = []
-    if app.editor is not None and app.paths.model and not app.edit.live:
+    if app.editor is not None and app.paths.model and not app.edit.live and app.scene_models.parts:
+        from app.viewer.scene_models import project_entries
+
+        models += project_entries(app, colour, original)  # each model of the scene with its rows and transform
+    elif app.editor is not None and app.paths.model and not app.edit.live:
         ed = app.editor
         models.append(ModelEntry(FileRef(Path(app.paths.model)), Path(app.paths.model).stem,
                                  FileRef(Path(original)) if original else None,
@@ -118,6 +123,9 @@ def apply_project(app, path: str | Path) -> Opened:
         ed.version += 1
         open_with_world(app, project.world)  # the scale and up axis the measure tools set
         opened.entry = entry
+        from app.viewer.scene_models import open_project_models
+
+        open_project_models(app, opened)  # its transform, and the project's other models joined to the scene
     for ref, fn, what in ((project.dataset, app.open_data, "dataset"), (project.painting, app.open_style,
                                                                         "painting")):
         if ref is not None and not ref.missing:

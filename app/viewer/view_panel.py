@@ -14,6 +14,9 @@ VIEW_WINDOW = "3D view"
 
 def view_window(app) -> None:
     """The gui function of the central dockable window (it calls begin/end itself: no padding, no scrolling)."""
+    from app.viewer.gizmo import begin_frame
+
+    begin_frame()
     imgui.push_style_var(imgui.StyleVar_.window_padding, imgui.ImVec2(0, 0))
     flags = (imgui.WindowFlags_.no_scrollbar | imgui.WindowFlags_.no_scroll_with_mouse
              | imgui.WindowFlags_.no_collapse)
@@ -36,12 +39,18 @@ def _contents(app) -> None:
     # input first, then the picture: a move is drawn in the frame that received it
     buttons = (imgui.ButtonFlags_.mouse_button_left | imgui.ButtonFlags_.mouse_button_right
                | imgui.ButtonFlags_.mouse_button_middle)
-    imgui.invisible_button("3d view canvas", imgui.ImVec2(width, height), buttons)
+    from app.viewer import gizmo
+
+    if gizmo.holds_mouse(app):
+        imgui.dummy(imgui.ImVec2(width, height))  # the gizmo has the mouse: the canvas neither orbits nor selects
+    else:
+        imgui.invisible_button("3d view canvas", imgui.ImVec2(width, height), buttons)
     hovered, active = imgui.is_item_hovered(), imgui.is_item_active()
     app.window.view_hovered = hovered or active
     from app.viewer.edit_panel import handle_gesture
 
-    view.handle_mouse(imgui, hovered, active, left_orbits=app.edit.tool == "orbit")
+    left_free = not gizmo.left_is_taken(app)
+    view.handle_mouse(imgui, hovered, active, left_orbits=app.edit.tool == "orbit" and left_free)
     if not app.editor_shortcut_held():
         view.handle_keys(imgui, min(app.window.frame_dt, 0.1), fly_speed=0.5 * app.fly_span(),
                          enabled=not io.want_text_input and (imgui.is_window_focused() or hovered))
@@ -54,7 +63,9 @@ def _contents(app) -> None:
         # GL textures start at the bottom row: flip v so the picture stands upright
         draw_list.add_image(imgui.ImTextureRef(texture.glo), origin,
                             imgui.ImVec2(origin.x + width, origin.y + height), imgui.ImVec2(0, 1), imgui.ImVec2(1, 0))
-    handle_gesture(app, hovered, active)  # drawn over the picture
+    if left_free:
+        handle_gesture(app, hovered, active)  # drawn over the picture
     from app.viewer.measure_panel import handle_pick
 
     handle_pick(app, hovered)  # the measure and up tools' picks, drawn over the picture
+    gizmo.view_gizmo(app, hovered)
