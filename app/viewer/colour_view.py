@@ -3,8 +3,11 @@ the Edit panel's export and a saved project hold. No imgui here (colour_panel.py
 
 The edits are one ``ColourEdits`` (training/model/colour_edit.py) kept in the editor's ``extra`` under
 ``"colour"``, so undo and redo cover them with every other edit. Their regions are masks over the rows of the model
-file as opened (the editor's ``index`` maps the rows the view shows to them), as a project stores them, so
-``splatstyler export --project`` bakes the same SH the view shows.
+file as opened (the editor's rows map to them through the scene's ledger, app/viewer/scene_models.py), as a project
+stores them, so ``splatstyler export --project`` bakes the same SH the view shows. They act on the first (opened)
+model's Gaussians: a model added to the scene keeps its colours (its project entry keeps its own edits). A row moved
+by the gizmo is still its file row: the edits are applied in the file's frame and the row is then turned as its
+part and the scene's world turn it, the order ``export --project`` bakes in.
 
 Style strength blends each Gaussian's stylized SH with its original's, row for row. The original comes from:
 
@@ -36,7 +39,7 @@ class ColourState:
     original_path: str = ""  # the paired original (unstylized) model file
     original_input: str = ""  # what the panel's field holds (paired by its button)
     original_sh: np.ndarray | None = None  # (N, K, 3) float32 over the opened file's rows
-    paired_with: object = None  # the source model (app.source_gaussians) the original was checked against
+    paired_with: object = None  # the first model file (its path) the original was checked against
     stylized_from: str = ""  # the model the last stylization in this session started from (offered as original)
     region: str = "selection"  # what a slider applies to: selection | all
     drag: int = 0  # counts slider drags: changes within one drag are one undo step
@@ -49,12 +52,36 @@ def edits_of(app) -> ColourEdits:
     return ed.extras.get(KEY, ColourEdits()) if ed is not None else ColourEdits()
 
 
+def _ledger(app) -> bool:
+    """The viewer holds an opened model with the scene's ledger (not a running trainer's model)."""
+    return app.source_gaussians is not None and bool(app.scene_models.parts)
+
+
+def first_model_rows(app) -> tuple[np.ndarray, np.ndarray]:
+    """For the editor's rows: whether each is the first (opened) model's, and its row in that file."""
+    if not _ledger(app):
+        return np.ones(app.editor.count, bool), app.editor.index
+    from app.viewer.scene_models import file_rows as ledger_rows
+
+    files, rows = ledger_rows(app)
+    return files == 0, rows
+
+
 def file_rows(app) -> int:
     """How many rows the opened model file has (the length of a colour region)."""
-    if app.source_gaussians is not None:
-        return len(app.source_gaussians)
+    if _ledger(app):
+        return len(app.scene_models.parts[0].rows)  # part 0: the opened file as read, in its own frame
     index = app.editor.index
     return int(index.max()) + 1 if len(index) else 0
+
+
+def _paired(app) -> bool:
+    st = app.colour
+    if st.original_sh is None:
+        return False
+    if _ledger(app):
+        return st.paired_with == str(app.scene_models.files[0].path) and len(st.original_sh) == file_rows(app)
+    return False
 
 
 def region_mask(app, region: str) -> np.ndarray | None:
@@ -62,7 +89,10 @@ def region_mask(app, region: str) -> np.ndarray | None:
     if region == "all":
         return None
     ed = app.editor
-    rows = ed.index[ed.selected]
+    first, frows = first_model_rows(app)
+    rows = frows[ed.selected & first]
+    if len(rows) == 0 and ed.selected.any():
+        raise ValueError("colour edits act on the opened model's Gaussians: the selection holds only added models'")
     if len(rows) == 0:
         raise ValueError("nothing is selected: select Gaussians (Edit panel) or apply to all")
     mask = np.zeros(file_rows(app), bool)
@@ -141,8 +171,7 @@ def strength_problem(app) -> str | None:
         return "open a model"
     if app.edit.live:
         return "style strength applies to a stylization, not to a live edit"
-    st = app.colour
-    if st.original_sh is None or st.paired_with is not app.source_gaussians:
+    if not _paired(app):
         return "pair the stylized model with its original (the model before stylization) below"
     return None
 
@@ -160,13 +189,14 @@ def pair_original(app, path: str) -> None:
         raise InputError(p, "file does not exist")
     g = read_splat(p) if p.suffix.lower() == ".splat" else read_ply(p)
     src = app.source_gaussians
-    if len(g) != len(src) or g.sh_degree != src.sh_degree:
+    n = file_rows(app)
+    if len(g) != n or g.sh_degree != src.sh_degree:
         raise InputError(p, f"does not pair with the opened model row for row ({len(g)} Gaussians of SH degree "
-                            f"{g.sh_degree}; the opened model has {len(src)} of degree {src.sh_degree})")
+                            f"{g.sh_degree}; the opened model has {n} of degree {src.sh_degree})")
     st = app.colour
     st.original_sh = g.sh.detach().cpu().numpy().astype(np.float32)
     st.original_sh.setflags(write=False)
-    st.original_path, st.paired_with = str(p), src
+    st.original_path, st.paired_with = str(p), str(app.scene_models.files[0].path) if app.scene_models.files else ""
     st._cache_key = None
     app.say(f"paired {p} as the original of {app.paths.model} ({len(g):,} rows)")
 
@@ -180,10 +210,7 @@ def _original_rows(app, snap) -> np.ndarray | None:
             return None
         sh = trainer.original_sh
         return sh.detach().cpu().numpy() if len(sh) == len(snap) else None
-    st = app.colour
-    if st.original_sh is None or st.paired_with is not app.source_gaussians:
-        return None
-    return st.original_sh[app.editor.index] if len(app.editor.index) == len(snap) else None
+    return None  # an opened model: _opened_model_sh takes the paired original over the file's rows
 
 
 def displayed(app, snap):
@@ -198,19 +225,54 @@ def displayed(app, snap):
     st = app.colour
     trainer = stylizer(app)
     original_key = id(trainer.original_sh) if trainer is not None else id(st.original_sh)
-    key = (snap.version, snap.geometry_version, id(edits), id(ed.index), original_key)
+    key = (snap.version, snap.geometry_version, id(edits), id(ed.index), original_key, id(app.source_gaussians),
+           id(ed.extras.get("world")))
     if st._cache_key == key:
         return st._cache
-    original = _original_rows(app, snap) if edits.uses_original else None
-    if edits.uses_original and original is None:
-        edits = replace(edits, strength=1.0, strength_regions=[])  # no original: the strength cannot show
-    sh = edits.apply(snap.sh, original_sh=original, rows=ed.index)
+    if trainer is None and _ledger(app) and app.session.trainer is None:
+        sh = _opened_model_sh(app, edits)
+    else:
+        original = _original_rows(app, snap) if edits.uses_original else None
+        if edits.uses_original and original is None:
+            edits = replace(edits, strength=1.0, strength_regions=[])  # no original: the strength cannot show
+        sh = edits.apply(snap.sh, original_sh=original, rows=ed.index)
     if sh is not snap.sh:
         sh = np.ascontiguousarray(sh, np.float32)
         sh.setflags(write=False)
     out = replace(snap, version=next(_versions), sh=sh)
     st._cache_key, st._cache = key, out
     return out
+
+
+def _opened_model_sh(app, edits) -> np.ndarray:
+    """The SH of the editor's rows as the view shows them: the edits applied to the opened file's rows in its own
+    frame, each row then turned as its part and the scene's world turn it (the order ``export --project`` bakes
+    in); the rows of added models keep their colours."""
+    import torch
+
+    from app.viewer.scene_models import in_world
+    from training.model.transform import transform_gaussians
+
+    source, models, index = app.source_gaussians, app.scene_models, app.editor.index
+    if edits.uses_original and not _paired(app):
+        edits = replace(edits, strength=1.0, strength_regions=[])  # no original: the strength cannot show
+    n0 = file_rows(app)
+    original = None if not edits.uses_original else torch.from_numpy(np.array(app.colour.original_sh))
+    adjusted = edits.apply(source.sh[:n0].detach().cpu(), original_sh=original)
+    adjusted = torch.as_tensor(adjusted)
+    rows = torch.as_tensor(index, dtype=torch.long)
+    shown = source.subset(rows)
+    sh = shown.sh.detach().cpu().clone()
+    parts = models.part_of(index)
+    for pid in np.unique(parts):
+        part = models.parts[pid]
+        if part.file != 0:
+            continue
+        at = np.flatnonzero(parts == pid)
+        frows = torch.as_tensor(part.rows[index[at] - part.start], dtype=torch.long)
+        g = _with_sh(source.subset(frows), adjusted[frows])  # part 0's rows are the file's, in its frame
+        sh[torch.as_tensor(at, dtype=torch.long)] = transform_gaussians(g, part.transform).sh.detach().cpu()
+    return in_world(app, _with_sh(shown, sh)).sh.detach().cpu().numpy()
 
 
 # --------------------------------------------------------------------------------------------- export and project
@@ -224,12 +286,10 @@ def export_baker(app):
     if edits.is_identity or app.editor is None:
         return lambda g, trainer=None: g
     index = app.editor.index.copy()
-    st = app.colour
-    source = app.source_gaussians
-    original_sh = st.original_sh if st.paired_with is source else None
     problem = strength_problem(app) if edits.uses_original else None
     if problem is not None:
         raise ValueError(problem)
+    opened_sh = _opened_model_sh(app, edits) if _ledger(app) and app.session.trainer is None else None
 
     def bake(g, trainer=None):
         if trainer is not None:
@@ -239,10 +299,10 @@ def export_baker(app):
             original = trainer.original_sh.detach().cpu() if edits.uses_original else None
             sh = edits.apply(g.sh, original_sh=original, rows=index)
             return _with_sh(g, sh)
-        # the opened model: edits over the whole file, then its kept rows
-        full = edits.apply(source.sh, original_sh=None if original_sh is None else torch.from_numpy(
-            np.array(original_sh)))
-        return _with_sh(source, full).subset(torch.as_tensor(index, dtype=torch.long))
+        # the opened model as shown (model_to_export: the editor's rows in the scene's world)
+        if opened_sh is None or len(g) != len(opened_sh):
+            raise ValueError("the colour edits belong to another set of Gaussians: select again")
+        return _with_sh(g, torch.from_numpy(np.array(opened_sh)))
 
     return bake
 
@@ -270,7 +330,7 @@ def for_project(app) -> tuple[ColourEdits | None, str | None]:
                 None if entry is None or entry.original is None else str(entry.original.path))
     edits = edits_of(app)
     st = app.colour
-    original = st.original_path if st.paired_with is app.source_gaussians and st.original_path else None
+    original = st.original_path if _paired(app) and st.original_path else None
     if original is None and entry is not None and entry.original is not None:
         original = str(entry.original.path)
     return edits, original

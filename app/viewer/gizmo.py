@@ -195,8 +195,10 @@ def view_gizmo(app, hovered: bool) -> None:
 def _preview(app, delta: np.ndarray) -> None:
     from app.viewer.scene_models import moved_arrays, with_rows
 
+    from app.viewer.colour_view import displayed
+
     snap = with_rows(app.editor.model, app.gizmo.mask, moved_arrays(app, app.gizmo.mask, delta))
-    app.view.show(snap, 0)
+    app.view.show(displayed(app, snap), 0)  # with the Colour panel's edits, as the view shows the model after it
     app.view.renderer.set_flags(app.editor.flags(), 0)
     app.view.dirty = True
 
