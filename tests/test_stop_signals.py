@@ -67,22 +67,25 @@ def test_sigterm_stops_the_headless_demo_with_its_reconstruction_checkpointed(tm
     from training.reconstruct.checkpoint import load_checkpoint
 
     out = tmp_path / "demo"
-    proc = subprocess.Popen([sys.executable, "-m", "app", "demo", "--headless", "-o", str(out), "--recon-iters",
-                             "3000"], cwd=ROOT, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
-                            env=dict(os.environ))
+    log = tmp_path / "stderr.txt"
+    with open(log, "w") as err_file:  # a file, not a pipe: the progress bar would fill a pipe nobody reads yet
+        proc = subprocess.Popen([sys.executable, "-m", "app", "demo", "--headless", "-o", str(out), "--recon-iters",
+                                 "3000"], cwd=ROOT, stdout=subprocess.DEVNULL, stderr=err_file,
+                                env=dict(os.environ))
     ckpt = out / "reconstruction" / "checkpoint.pt"
     try:
         t0 = time.time()
-        while time.time() - t0 < 240 and proc.poll() is None and not ckpt.exists():
+        while time.time() - t0 < 300 and proc.poll() is None and not ckpt.exists():
             time.sleep(0.5)  # until the reconstruction has written a checkpoint of its own
-        assert proc.poll() is None and ckpt.exists(), proc.communicate()
+        assert proc.poll() is None and ckpt.exists(), log.read_text()[-2000:]
         step_before = load_checkpoint(ckpt)["step"]
         proc.send_signal(signal.SIGTERM)
-        _, err = proc.communicate(timeout=120)
+        proc.wait(timeout=120)
     finally:
         if proc.poll() is None:
             proc.kill()
-    assert proc.returncode == 143, err
+    err = log.read_text()
+    assert proc.returncode == 143, err[-2000:]
     assert "stopped by SIGTERM" in err and "checkpoint saved" in err, err
     assert "stack trace" not in err and "Traceback" not in err, err
     assert load_checkpoint(ckpt)["step"] >= step_before

@@ -317,13 +317,16 @@ Path(os.environ["RESULT"]).write_text(json.dumps(found))
 
 
 def test_a_saved_project_opens_to_the_same_model_view_and_keyframes(demo_scene, tmp_path):
-    """File > Save project with a deletion, a selection, a hidden region and a keyframe; a new session opens it
-    (as `splatstyler view PROJECT.splatproj` does): the same Gaussians, selection, keyframes and camera, and the
-    view pixel for pixel the same."""
+    """File > Save project with a deletion, a hidden region, a gizmo move, a colour adjustment, a selection and a
+    keyframe; a new session opens it (as `splatstyler view PROJECT.splatproj` does): the same Gaussians (positions and
+    colours bit for bit), selection, keyframes and camera, and the view pixel for pixel the same."""
     scene_dir, style, model = demo_scene
     project = tmp_path / "session.splatproj"
     first = run_gui(PRELUDE + f"""
+from app.viewer import colour_view as cv
+from app.viewer.scene_models import transform_rows
 from app.viewer.selection import in_sphere
+from training.model.colour_edit import ColourAdjustment
 app = ViewerApp(Paths(model={str(model)!r}, data={str(scene_dir)!r}, style={str(style)!r}, out=str(OUT / "a")))
 
 def test(ctx):
@@ -333,6 +336,15 @@ def test(ctx):
     ed.delete()
     ed.select(in_sphere(ed.model.means, ed.model.means[10], 0.8), "set")
     ed.hide()
+    ed.select(in_sphere(ed.model.means, ed.model.means[30], 1.0), "set")
+    found["moved_rows"] = int(ed.selected.sum())
+    turn = np.eye(4)  # what a gizmo drag hands over: a similarity in the view's world
+    turn[:3, :3] = [[0.8, -0.6, 0.0], [0.6, 0.8, 0.0], [0.0, 0.0, 1.0]]
+    turn[:3, 3] = [0.3, -0.2, 0.1]
+    transform_rows(app, ed.selected.copy(), turn)
+    ed.select(in_sphere(ed.model.means, ed.model.means[5], 1.2), "set")
+    region = cv.region_mask(app, "selection")
+    cv.set_edits(app, cv.with_adjustment(cv.edits_of(app), region, ColourAdjustment(brightness=0.2, hue=40.0)))
     ed.select(in_sphere(ed.model.means, ed.model.means[20], 0.8), "set")
     app.view.camera.orbit(40.0, 10.0)
     app.view.moved()
@@ -357,6 +369,9 @@ def test(ctx):
     found["keys"] = len(app.path.keys)
     found["rotation"] = app.view.camera.rotation.tolist()
     found["position"] = app.view.camera.position.tolist()
+    shown = cv.displayed(app, ed.model)
+    np.save(OUT / "means_a.npy", shown.means)
+    np.save(OUT / "sh_a.npy", shown.sh)
 
 run(app, test)
 found["project"] = app.project.path
@@ -380,22 +395,30 @@ def test(ctx):
     wait(ctx, lambda: not app.view.needs_draw(False), 60, "the still view")
     np.save(OUT / "view_b.npy", on_gl_thread(ctx, app.view.read))
     found["count"] = ed.count
-    found["index"] = ed.index.tolist()
     found["selected"] = ed.selected.tolist()
     found["hidden"] = ed.hidden.tolist()
     found["keys"] = len(app.path.keys)
     found["rotation"] = app.view.camera.rotation.tolist()
     found["position"] = app.view.camera.position.tolist()
     found["data"], found["style"] = app.paths.data, app.paths.style
+    from app.viewer.colour_view import displayed
+
+    shown = displayed(app, ed.model)
+    np.save(OUT / "means_b.npy", shown.means)
+    np.save(OUT / "sh_b.npy", shown.sh)
 
 run(app, test)
 found["error"] = app.error
 Path(os.environ["RESULT"]).write_text(json.dumps(found))
 """, tmp_path)
     assert second["error"] == "", second["error"]
-    for key in ("count", "index", "selected", "hidden", "keys"):
+    for key in ("count", "selected", "hidden", "keys"):
         assert second[key] == first[key], key
     assert first["count"] < 4000 and any(first["hidden"]) and any(first["selected"]) and first["keys"] == 1
+    assert first["moved_rows"] > 50
+    for what in ("means", "sh"):  # the moved and recoloured Gaussians come back as they were shown
+        a, b = np.load(tmp_path / f"{what}_a.npy"), np.load(tmp_path / f"{what}_b.npy")
+        assert a.shape == b.shape and np.array_equal(a, b), (what, float(np.abs(a - b).max()))
     assert np.allclose(second["rotation"], first["rotation"], atol=1e-9)
     assert np.allclose(second["position"], first["position"], atol=1e-9)
     assert second["data"] == str(scene_dir) and second["style"] == str(style)

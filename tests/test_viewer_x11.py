@@ -284,3 +284,63 @@ def test_x11_real_key_events_quick_ctrl_z_undoes_once_and_never_rolls(demo_scene
     assert after_quick["count"] == n + 100  # one undo for one quick Ctrl+Z
     assert after_held["count"] == n + 200  # one more for one held Ctrl+Z, not a repeat
     assert np.abs(np.array(after_held["rotation"]) - np.array(first["rotation"])).max() < 1e-9  # no roll
+
+
+def test_x11_a_saved_project_opens_to_the_same_picture(demo_scene, x_server, tmp_path):
+    """Issue 21's acceptance on the X screen: a session with a deletion, a gizmo move, a colour adjustment and a
+    keyframe is saved (File > Save project) and closed; a new session opens the project and the X server shows the
+    same 3D view, pixel for pixel."""
+    scene_dir, style, model = demo_scene
+    first = run_gui(PRELUDE + LOOK + f"""
+from app.viewer import colour_view as cv
+from app.viewer.scene_models import transform_rows
+from app.viewer.selection import in_sphere
+from training.model.colour_edit import ColourAdjustment
+app = ViewerApp(Paths(model={str(model)!r}, data={str(scene_dir)!r}, style={str(style)!r}, out=str(OUT / "a")))
+
+def test(ctx):
+    wait(ctx, lambda: app.view is not None and app.view.has_model(0), 60, "the model")
+    ed = app.editor
+    ed.select(in_sphere(ed.model.means, ed.model.means[0], 1.0), "set")
+    ed.delete()
+    ed.select(in_sphere(ed.model.means, ed.model.means[30], 1.0), "set")
+    turn = np.eye(4)  # a gizmo drag's similarity in the view's world
+    turn[:3, :3] = [[0.8, -0.6, 0.0], [0.6, 0.8, 0.0], [0.0, 0.0, 1.0]]
+    turn[:3, 3] = [0.3, -0.2, 0.1]
+    transform_rows(app, ed.selected.copy(), turn)
+    ed.select(in_sphere(ed.model.means, ed.model.means[5], 1.5), "set")
+    cv.set_edits(app, cv.with_adjustment(cv.edits_of(app), cv.region_mask(app, "selection"),
+                                         ColourAdjustment(brightness=0.25, hue=60.0)))
+    ed.select_none()
+    app.view.camera.orbit(30.0, 8.0)
+    open_window(ctx, "Camera path")
+    ctx.item_click("Add keyframe")
+    ctx.set_ref("##MainMenuBar")
+    ctx.menu_click("File/Save project")
+    record("saved", ctx)
+
+run(app, test)
+found["project"] = app.project.path
+found["error"] = app.error
+Path(os.environ["RESULT"]).write_text(json.dumps(found))
+""", tmp_path, env=x11_env(x_server))
+    assert first["error"] == "", first["error"]
+    second = run_gui(PRELUDE + LOOK + f"""
+app = ViewerApp(Paths(out=str(OUT / "b")), project={first["project"]!r})
+
+def test(ctx):
+    wait(ctx, lambda: app.view is not None and app.view.has_model(0), 60, "the project's model")
+    record("opened", ctx)
+    found["keys"] = len(app.path.keys)
+
+run(app, test)
+found["error"] = app.error
+Path(os.environ["RESULT"]).write_text(json.dumps(found))
+""", tmp_path, env=x11_env(x_server))
+    assert second["error"] == "", second["error"]
+    assert second["keys"] == 1
+    a, b = np.load(tmp_path / "saved_region.npy"), np.load(tmp_path / "opened_region.npy")
+    assert first["saved"]["rect"] == second["opened"]["rect"]
+    assert float(a.std()) > 5
+    differ = np.any(a != b, axis=-1)
+    assert not differ.any(), f"{int(differ.sum())} pixels differ on the X screen (PSNR {psnr(a, b):.1f} dB)"
