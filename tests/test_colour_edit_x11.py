@@ -107,6 +107,9 @@ def test(ctx):
     open_window(ctx, "Edit")
     ctx.item_click("None")
     record("strength_zero", ctx)
+    app.export.path = str(OUT / "strength_zero.ply")  # the Edit panel's export at strength 0
+    ctx.item_click("Export")
+    ctx.yield_(2)
     # the left half of the model back to the stylized colours: strength 1 on a selection over strength 0
     ed.select(means[:, 0] < np.median(means[:, 0]), "set")
     open_window(ctx, "Colour")
@@ -145,6 +148,11 @@ Path(os.environ["RESULT"]).write_text(json.dumps(found))
     reference = headless_render(original, camera).astype(np.float64)
     stylized_reference = headless_render(stylized, camera).astype(np.float64)
     assert np.abs(zero - reference).mean() < 0.3 * np.abs(zero - stylized_reference).mean()
+    # and the export at strength 0 holds the original's colours bit for bit
+    from training.model.ply_io import read_ply
+
+    exported, photo = read_ply(tmp_path / "strength_zero.ply"), read_ply(original)
+    assert len(exported) == len(photo) and bool((exported.sh == photo.sh).all())
     shots = os.environ.get("SHOTS")
     for name in SHOT_NAMES:
         assert (tmp_path / f"{name}.png").is_file()

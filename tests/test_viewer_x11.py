@@ -292,6 +292,7 @@ def test_x11_a_saved_project_opens_to_the_same_picture(demo_scene, x_server, tmp
     same 3D view, pixel for pixel."""
     scene_dir, style, model = demo_scene
     first = run_gui(PRELUDE + LOOK + f"""
+import pickle
 from app.viewer import colour_view as cv
 from app.viewer.scene_models import transform_rows
 from app.viewer.selection import in_sphere
@@ -326,6 +327,7 @@ Path(os.environ["RESULT"]).write_text(json.dumps(found))
 """, tmp_path, env=x11_env(x_server))
     assert first["error"] == "", first["error"]
     second = run_gui(PRELUDE + LOOK + f"""
+import pickle
 app = ViewerApp(Paths(out=str(OUT / "b")), project={first["project"]!r})
 
 def test(ctx):

@@ -243,7 +243,7 @@ def files_shown(app) -> list[int]:
 
 # ------------------------------------------------------------------ projects
 def project_entries(app, colour=None, original: str | None = None) -> list:
-    """The editor's models as project entries: one per part it still shows, in the order of the editor's rows,
+    """The editor's models as project entries: one per run of rows from one part, in the order of the editor's rows,
     with the part's transform; the first file gets ``colour``/``original`` (those of the entry it was opened
     from), the others what their own entries had."""
     from app.project import FileRef, ModelEntry
@@ -252,10 +252,14 @@ def project_entries(app, colour=None, original: str | None = None) -> list:
     ed = app.editor
     models = app.scene_models
     part_ids = models.part_of(ed.index)
-    _, first = np.unique(part_ids, return_index=True)
+    # one entry per run of rows from the same part, so the project opens with the editor's order (a selection moved
+    # out of the middle of a model is a run of its own between two runs of the rest)
+    bounds = np.flatnonzero(np.diff(part_ids)) + 1
     entries = []
-    for pid in part_ids[np.sort(first)]:
-        at = part_ids == pid
+    for at in np.split(np.arange(len(part_ids)), bounds):
+        if len(at) == 0:
+            continue
+        pid = part_ids[at[0]]
         part = models.parts[pid]
         f = models.files[part.file]
         edits = colour if part.file == 0 and colour is not None else f.colour
