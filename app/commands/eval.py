@@ -8,7 +8,9 @@ and the next run retries it. Runs on this machine with a pool of worker processe
 (--ray auto, --ray ADDRESS, or --ray local to start one here).
 
 Writes OUT/report/RESULTS.md (tables with the spread across seeds, the paper's directions checked), and under
-OUT/report/results/ cells.csv, plots and contact sheets. Exit status 1 when any job failed.
+OUT/report/results/ cells.csv, plots and contact sheets (evenly spaced views, and each group's least consistent
+pair of neighbouring views). --cells-from takes an earlier report's cells.csv (a run of the same grid elsewhere)
+into the tables for the cells not finished here. Exit status 1 when any job failed.
 """
 
 from __future__ import annotations
@@ -38,6 +40,9 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--list", action="store_true", help="list the jobs and their state, run nothing")
     p.add_argument("--report-only", action="store_true", help="write the report from the recorded results, run nothing")
     p.add_argument("--report-dir", default=None, metavar="DIR", help="where the report goes (default: OUT/report)")
+    p.add_argument("--cells-from", action="append", default=None, metavar="CSV",
+                   help="an earlier report's results/cells.csv from a run of this grid file (another machine's OUT): "
+                        "cells not finished here take their rows from it in the tables and plots; repeatable")
     p.set_defaults(func=run)
 
 
@@ -68,8 +73,13 @@ def run(args: argparse.Namespace) -> int:
                 state = results.get(job.id, {}).get("status", "todo")
                 print(f"{state:7s} {job.id}")
         return 0
+    earlier: dict = {}
+    for csv_path in args.cells_from or []:
+        from app.evaluate.report import read_cells_csv
+
+        earlier.update(read_cells_csv(Path(csv_path), grid))  # read before the grid runs: a bad file stops it now
     make_output_dir(out)
-    command = "splatstyler eval " + str(args.grid)
+    command = "splatstyler eval " + str(args.grid) + "".join(f" --cells-from {c}" for c in args.cells_from or [])
     if not args.report_only:
         pool = RayPool(args.ray, threads, num_cpus=cores) if args.ray else LocalPool(workers, threads)
         where = f"Ray ({args.ray})" if args.ray else f"{workers} local worker(s)"
@@ -77,8 +87,11 @@ def run(args: argparse.Namespace) -> int:
         results = run_grid(grid, out, pool, log=lambda line: print(line, flush=True), only=only)
     else:
         results = load_results(out, grid)
-    md = write_report(grid, out, results, Path(args.report_dir) if args.report_dir else None, command=command)
+    md = write_report(grid, out, results, Path(args.report_dir) if args.report_dir else None, command=command,
+                      earlier=earlier)
     failed = [jid for jid, r in results.items() if r.get("status") == "failed"]
     ok = sum(1 for j in grid.cells if results.get(j.id, {}).get("status") == "ok")
+    if earlier:
+        ok += sum(1 for j in grid.cells if j.id in earlier and results.get(j.id, {}).get("status") != "ok")
     print(f"eval: {ok} of {len(grid.cells)} cells done, {len(failed)} jobs failed; report {md}", flush=True)
     return 1 if failed else 0

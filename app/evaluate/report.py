@@ -3,7 +3,8 @@ across seeds), the paper's expected directions checked per scene, plots (matplot
 views of every setting side by side).
 
 Layout under ``folder`` (OUT/report by default): RESULTS.md, and results/cells.csv, results/plots/*.png,
-results/sheets/*.jpg, linked relatively, so the folder can be copied as is (docs/ holds one such copy).
+results/sheets/*.jpg (evenly spaced views, and the worst pair of neighbouring views: app/evaluate/worst_pair.py),
+linked relatively, so the folder can be copied as is (docs/ holds one such copy).
 """
 
 from __future__ import annotations
@@ -24,16 +25,61 @@ SHEET_CELL = 256  # the quick preset renders at 256 px: shown as rendered
 ID_COLUMNS = ("scene", "setting", "painting", "seed", "reconstruction", "method")
 
 
-def cell_rows(grid: Grid, results: dict[str, dict[str, Any]]) -> list[dict[str, Any]]:
-    """One row per finished cell: its ids and every metric."""
+def cell_rows(grid: Grid, results: dict[str, dict[str, Any]],
+              earlier: dict[str, dict[str, Any]] | None = None) -> list[dict[str, Any]]:
+    """One row per finished cell: its ids and every metric; a cell with no finished result here takes its row from
+    ``earlier`` (read_cells_csv), if there."""
     rows = []
     for job in grid.cells:
         r = results.get(job.id)
         if not r or r.get("status") != "ok":
+            if earlier and job.id in earlier:
+                rows.append(dict(earlier[job.id]))
             continue
         row = {k: job.spec[k] for k in ID_COLUMNS}
         row.update({k: v for k, v in (r.get("metrics") or {}).items() if isinstance(v, (int, float)) or v is None})
         rows.append(row)
+    return rows
+
+
+def read_cells_csv(path: Path, grid: Grid) -> dict[str, dict[str, Any]]:
+    """The rows of an earlier report's cells.csv, by the id of the grid cell each one is: {job id: row}. Every row
+    must name a cell of ``grid`` with the same reconstruction and method; numbers are parsed, empty fields are None.
+    The file carries no settings or metrics version of its own: it must come from a run of this grid file at this
+    METRICS_VERSION (the caller's word)."""
+    from training.core.errors import InputError
+
+    path = Path(path)
+    try:
+        with open(path, newline="", encoding="utf-8") as f:
+            table = list(csv.DictReader(f))
+    except FileNotFoundError:
+        raise InputError(path, "no such cells.csv") from None
+    except (OSError, UnicodeDecodeError, csv.Error) as exc:
+        raise InputError(path, f"not a readable cells.csv: {exc}") from None
+    by_id = {j.id: j for j in grid.cells}
+    rows: dict[str, dict[str, Any]] = {}
+    for line, raw in enumerate(table, start=2):
+        if any(raw.get(k) in (None, "") for k in ID_COLUMNS):
+            raise InputError(path, f"line {line}: needs the columns {', '.join(ID_COLUMNS)}")
+        jid = f"cell/{raw['scene']}/{raw['setting']}/{raw['painting']}/seed{raw['seed']}"
+        job = by_id.get(jid)
+        if job is None:
+            raise InputError(path, f"line {line}: {jid} is not a cell of {grid.path.name}")
+        for key in ("reconstruction", "method"):
+            if raw[key] != str(job.spec[key]):
+                raise InputError(path, f"line {line}: {jid} has {key} {raw[key]!r}, the grid's is {job.spec[key]!r}")
+        if jid in rows:
+            raise InputError(path, f"line {line}: {jid} is in the file twice")
+        row: dict[str, Any] = {k: job.spec[k] for k in ID_COLUMNS}
+        for key, value in raw.items():
+            if key in ID_COLUMNS or key is None:
+                continue
+            try:
+                row[key] = None if value in ("", None) else float(value)
+            except ValueError:
+                raise InputError(path, f"line {line}: {key} = {value!r} is not a number") from None
+        rows[jid] = row
     return rows
 
 
@@ -190,24 +236,77 @@ def contact_sheet(grid: Grid, out: Path, group: Group, scene: str, results: dict
     return labels
 
 
+def worst_pair_section(grid: Grid, out: Path, group: Group, scene: str, results: dict, path: Path) -> list[str]:
+    """The markdown for the group's worst-pair sheet on ``scene`` (app/evaluate/worst_pair.py), first seed; [] when
+    fewer than two of its cells have a saved model here."""
+    from app.evaluate.jobs import data_path
+    from app.evaluate.worst_pair import DIFF_GAIN, worst_pair_sheet
+    from training.core.errors import InputError
+
+    by_id = {j.id: j for j in grid.cells}
+    paintings = group.paintings or list(grid.paintings)
+    seed = grid.seeds[0]
+    cells = []
+    for setting in group.settings:
+        for painting in paintings:
+            jid = f"cell/{scene}/{setting}/{painting}/seed{seed}"
+            r, job = results.get(jid), by_id.get(jid)
+            model = job_dir(out, jid) / "point_cloud.ply"
+            if job is None or not r or r.get("status") != "ok" or job.spec["method"] != "stylize" \
+                    or not model.is_file():
+                continue  # not run here, or a 2D cell (no model to render)
+            label = f"{setting} / {painting}" if len(paintings) > 1 else setting
+            cells.append((label, model, data_path(out, job.spec), Path(job.spec["painting_path"]),
+                          job.spec["flags"]))
+    if len(cells) < 2:
+        return []
+    try:
+        sheet = worst_pair_sheet(cells, path)
+    except (InputError, OSError, ValueError) as exc:  # the scene data moved since the grid ran: no sheet
+        return [f"{scene}: the worst pair could not be drawn ({str(exc).splitlines()[0][:200]}).", ""]
+    if sheet is None:
+        return []
+    rows = ", ".join(f"{label} (pair {sheet.rmse[i]:.4f}, mean over its pairs {sheet.cell_rmse[i]:.4f})"
+                     for i, label in enumerate(sheet.labels))
+    return [f"{scene}, seed {seed}: the least consistent pair of neighbouring views (largest depth-warp RMSE summed "
+            f"over the rows), A = `{sheet.views[0]}`, B = `{sheet.views[1]}`; rows: {rows}; columns: A, B, B warped "
+            f"into A (black: not compared), |A - warped B| x{DIFF_GAIN:g}.", "",
+            f"![{group.title}: {scene}, worst pair](results/sheets/{path.name})", ""]
+
+
+def _reused_note(reused: list) -> str:
+    if not reused:
+        return ""
+    scenes = sorted({j.spec["scene"] for j in reused})
+    return (f" ({len(reused)} of them, on {', '.join(scenes)}, measured by an earlier run of the same grid and "
+            f"taken from its cells.csv: no contact sheets or reconstruction times for those)")
+
+
 def write_report(grid: Grid, out: Path, results: dict[str, dict[str, Any]], folder: Path | None = None,
-                 command: str = "") -> Path:
-    """Write RESULTS.md, the CSV, the plots and the contact sheets; returns the markdown's path."""
+                 command: str = "", earlier: dict[str, dict[str, Any]] | None = None) -> Path:
+    """Write RESULTS.md, the CSV, the plots and the contact sheets; returns the markdown's path. ``earlier``: rows
+    of cells measured by an earlier run (read_cells_csv), used for the cells not finished here (their renders and
+    models are not here: no contact sheets for them)."""
     folder = Path(folder) if folder is not None else Path(out) / "report"
     assets = folder / "results"
-    rows = cell_rows(grid, results)
+    earlier = earlier or {}
+    rows = cell_rows(grid, results, earlier)
     write_csv(rows, assets / "cells.csv")
     scenes = list(grid.scenes)
     cells = grid.cells
-    ok = sum(1 for j in cells if results.get(j.id, {}).get("status") == "ok")
-    failed = [j for j in grid.jobs if results.get(j.id, {}).get("status") == "failed"]
-    missing = [j for j in cells if j.id not in results]
+    ok_here = {j.id for j in cells if results.get(j.id, {}).get("status") == "ok"}
+    reused = [j for j in cells if j.id not in ok_here and j.id in earlier]
+    ok = len(ok_here) + len(reused)
+    failed = [j for j in grid.jobs if results.get(j.id, {}).get("status") == "failed"
+              and not (j.kind == "cell" and j.id in earlier)]
+    missing = [j for j in cells if j.id not in results and j.id not in earlier]
 
     md = [f"# {grid.title}", ""]
     if grid.intro:
         md += [grid.intro.strip(), ""]
     md += [f"Generated by `{command or 'splatstyler eval ' + grid.path.name}` on "
-           f"{datetime.date.today().isoformat()} from `{grid.path.name}`: {ok} of {len(cells)} cells finished, "
+           f"{datetime.date.today().isoformat()} from `{grid.path.name}`: {ok} of {len(cells)} cells finished"
+           f"{_reused_note(reused)}, "
            f"{len([j for j in failed if j.kind == 'cell'])} failed, {len(missing)} not run. Every cell and metric: "
            f"[results/cells.csv](results/cells.csv). Values are mean ± sample standard deviation over the seeds "
            f"(and paintings, where a row pools several); n is the number of cells.", ""]
@@ -219,6 +318,15 @@ def write_report(grid: Grid, out: Path, results: dict[str, dict[str, Any]], fold
         r = results.get(job.id, {})
         if job.kind == "reconstruct" and r.get("status") == "ok":
             recon_rows[f"{job.spec['scene']} {job.spec['variant']}"].append(r.get("reconstruction") or {})
+    # reconstructions only an earlier run had: what its cells recorded of them (not its time)
+    seen_recons = {j.spec["recon_job"] for j in reused}
+    for jid in sorted(seen_recons):
+        if results.get(jid, {}).get("status") == "ok":
+            continue
+        row = next(earlier[j.id] for j in reused if j.spec["recon_job"] == jid)
+        spec = next(j.spec for j in reused if j.spec["recon_job"] == jid)
+        recon_rows[f"{spec['scene']} {spec['reconstruction']}"].append(
+            {k: row.get(f"recon_{k}") for k in ("test_psnr", "test_ssim", "num_gaussians", "aniso_p95", "smax_p95")})
     for name, rs in recon_rows.items():
         md.append(f"| {name} (n={len(rs)}) | {mean_sd(_values(rs, 'test_psnr'))} | {mean_sd(_values(rs, 'test_ssim'))}"
                   f" | {mean_sd(_values(rs, 'num_gaussians'))} | {mean_sd(_values(rs, 'aniso_p95'))} | "
@@ -257,6 +365,8 @@ def write_report(grid: Grid, out: Path, results: dict[str, dict[str, Any]], fold
                 md += [f"{scene}, seed {grid.seeds[0]}; rows: {', '.join(labels)}; columns: "
                        f"{grid.sheet_views} evenly spaced views, then the painting.", "",
                        f"![{group.title}: {scene}](results/sheets/{sheet.name})", ""]
+            md += worst_pair_section(grid, out, group, scene, results,
+                                     assets / "sheets" / f"{group.name}_{scene}_worst_pair.jpg")
     if grid.discussion:
         md += ["## Discussion", "", grid.discussion.strip(), ""]
     if failed:
