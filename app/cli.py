@@ -86,6 +86,11 @@ def main(argv: list[str] | None = None) -> int:
             raise
         print(f"splatstyler: error: {exc}", file=sys.stderr)
         return 2
+    except BrokenPipeError:  # `splatstyler eval --list | head`: the reader left, as with any Unix tool say nothing
+        import os
+
+        os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())  # no second error at exit's flush
+        return 141  # 128 + SIGPIPE, what a shell reports for a tool the pipe's reader left
     except Exception as exc:  # an unexpected failure still gets one readable line
         if args.debug:
             raise

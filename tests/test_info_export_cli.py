@@ -184,3 +184,19 @@ def test_info_json_on_colmap_scene_with_points(tmp_path, capsys):
     loaded = load_scene(tmp_path, load_images=False)
     g = gaussians_from_points(loaded.points, loaded.point_colors, source=loaded.source)
     assert len(g) == 80 and torch.isfinite(g.log_scales).all()
+
+
+def test_a_reader_that_leaves_the_pipe_gets_no_error_line(tmp_path):
+    """`splatstyler info DATA | head -1`: the reader leaves early; like any Unix tool, no error and no traceback."""
+    import subprocess
+    import sys
+
+    from assets.demo.assets import demo_assets
+
+    root = Path(__file__).resolve().parents[1]
+    proc = subprocess.Popen([sys.executable, "-m", "app", "info", str(demo_assets().scene_dir)], cwd=root,
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    proc.stdout.close()  # the reader is gone before the first line is written
+    err = proc.stderr.read()
+    proc.wait(timeout=120)
+    assert err == "" and proc.returncode == 141, (proc.returncode, err)
