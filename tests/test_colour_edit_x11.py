@@ -14,24 +14,12 @@ import numpy as np
 import pytest
 
 from tests.test_colour_edit_ui import indicator_render, stylized_pair  # noqa: F401  (a fixture)
-from tests.test_viewer_x11 import LOOK, x11_env
-from tests.viewer_harness import PRELUDE, Xvfb, make_demo_scene, run_gui, xvfb_missing
+from tests.test_viewer_x11 import LOOK, demo_scene, x11_env, x_server  # noqa: F401  (fixtures)
+from tests.viewer_harness import PRELUDE, run_gui, xvfb_missing
 
 pytestmark = [pytest.mark.slow, pytest.mark.skipif(bool(xvfb_missing()), reason=xvfb_missing() or "ok")]
 
 SHOT_NAMES = ("colour_adjust", "colour_pick", "surface_brush", "size_range", "grow", "style_strength")
-
-
-@pytest.fixture(scope="module")
-def demo_scene(tmp_path_factory):
-    return make_demo_scene(tmp_path_factory)
-
-
-@pytest.fixture(scope="module")
-def x_server():
-    server = Xvfb((1400, 900)).start()
-    yield server
-    server.stop()
 
 
 def test_x11_colour_and_selection_tools_on_screen(stylized_pair, demo_scene, x_server, tmp_path):  # noqa: F811

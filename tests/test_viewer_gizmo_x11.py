@@ -9,22 +9,10 @@ import numpy as np
 import pytest
 
 from tests.gizmo_scenes import moved_copy, similarity
-from tests.test_viewer_x11 import LOOK, headless_render, psnr, x11_env
-from tests.viewer_harness import PRELUDE, Xvfb, check_frame, make_demo_scene, run_gui, xvfb_missing
+from tests.test_viewer_x11 import LOOK, demo_scene, headless_render, psnr, x11_env, x_server  # noqa: F401  (fixtures)
+from tests.viewer_harness import PRELUDE, check_frame, run_gui, xvfb_missing
 
 pytestmark = [pytest.mark.slow, pytest.mark.skipif(bool(xvfb_missing()), reason=xvfb_missing() or "ok")]
-
-
-@pytest.fixture(scope="module")
-def demo_scene(tmp_path_factory):
-    return make_demo_scene(tmp_path_factory)
-
-
-@pytest.fixture(scope="module")
-def x_server():
-    server = Xvfb((1400, 900)).start()
-    yield server
-    server.stop()
 
 
 def test_x11_two_models_on_screen_and_the_gizmo_on_selection_box_and_model(demo_scene, x_server, tmp_path):

@@ -8,24 +8,12 @@ import numpy as np
 import pytest
 
 from tests.test_viewer_measure import PICKING
-from tests.test_viewer_x11 import LOOK, x11_env
-from tests.viewer_harness import PRELUDE, Xvfb, make_demo_scene, run_gui, xvfb_missing
+from tests.test_viewer_x11 import LOOK, demo_scene, x11_env, x_server  # noqa: F401  (fixtures)
+from tests.viewer_harness import PRELUDE, run_gui, xvfb_missing
 
 pytestmark = [pytest.mark.slow, pytest.mark.skipif(bool(xvfb_missing()), reason=xvfb_missing() or "ok")]
 
 LINE = (120, 255, 60)  # measure_panel.LINE
-
-
-@pytest.fixture(scope="module")
-def demo_scene(tmp_path_factory):
-    return make_demo_scene(tmp_path_factory)
-
-
-@pytest.fixture(scope="module")
-def x_server():
-    server = Xvfb((1400, 900)).start()
-    yield server
-    server.stop()
 
 
 def test_x11_measure_line_and_floor_levelling_on_screen(demo_scene, x_server, tmp_path):
