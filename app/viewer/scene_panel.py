@@ -157,7 +157,7 @@ def depth_exr(app) -> Path:
         raise ValueError("nothing to render")
     io = imgui.get_io()
     cam = app.view.camera.camera(int(io.display_size.x), int(io.display_size.y))
-    depth = app.view.renderer.render_arrays(cam, ("depth",))["depth"]
+    depth = app.view.render_arrays(cam, ("depth",))["depth"]
     out = app.out_dir() / f"depth_{time.strftime('%Y%m%d_%H%M%S')}.exr"
     write_image(out, depth[..., None].astype(np.float32))
     app.say(f"wrote {out}")

@@ -37,12 +37,7 @@ def shown_sh(app) -> np.ndarray:
 
 def render_depth(app, camera) -> np.ndarray:
     """(H, W) depth the renderer composites for ``camera`` (0 where nothing is drawn), top row first."""
-    view = app.view
-    found = view.ctx.detect_framebuffer()  # imgui's framebuffer is bound mid-frame: give it back after
-    try:
-        return view.renderer.render_arrays(camera, outputs=("depth",))["depth"]
-    finally:
-        found.use()
+    return app.view.render_arrays(camera, ("depth",))["depth"]
 
 
 def gesture(app, points: list[tuple[float, float]]) -> None:

@@ -299,6 +299,15 @@ class View3D:
         data = self._fbo.read(components=3, alignment=1)
         return np.frombuffer(data, np.uint8).reshape(self._size[1], self._size[0], 3)[::-1].copy()
 
+    def render_arrays(self, camera, outputs: tuple[str, ...]) -> dict[str, np.ndarray]:
+        """The renderer's arrays (alpha, depth, ...) of the shown model for ``camera``, top row first, rendered
+        offscreen in the middle of a frame: the frame's own framebuffer binding is given back after."""
+        found = self.ctx.detect_framebuffer()
+        try:
+            return self.renderer.render_arrays(camera, outputs)
+        finally:
+            found.use()
+
     def release(self) -> None:
         self.release_cuda()
         self.renderer.release()

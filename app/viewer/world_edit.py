@@ -105,12 +105,7 @@ def pick(app, camera, x: float, y: float) -> np.ndarray | None:
     ix, iy = int(np.floor(x)), int(np.floor(y))
     if not (0 <= ix < camera.width and 0 <= iy < camera.height):
         return None
-    ctx = app.view.ctx
-    found = ctx.detect_framebuffer()  # the frame's own binding, given back after the offscreen passes
-    try:
-        out = app.view.renderer.render_arrays(camera, ("alpha", "depth"))
-    finally:
-        found.use()
+    out = app.view.render_arrays(camera, ("alpha", "depth"))
     if out["alpha"][iy, ix] < MIN_ALPHA or out["depth"][iy, ix] <= 0:
         app.say("nothing solid under the cursor: pick on the model")
         return None
