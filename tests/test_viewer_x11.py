@@ -7,6 +7,7 @@
 from __future__ import annotations
 
 import pickle
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -346,3 +347,52 @@ Path(os.environ["RESULT"]).write_text(json.dumps(found))
     assert float(a.std()) > 5
     differ = np.any(a != b, axis=-1)
     assert not differ.any(), f"{int(differ.sum())} pixels differ on the X screen (PSNR {psnr(a, b):.1f} dB)"
+
+
+def test_x11_a_model_opened_after_a_run_replaces_the_runs_model_on_screen(demo_scene, x_server, tmp_path):
+    """A run ends (here a short reconstruction); the user then opens another model from the Scene panel: the X
+    screen must show that model, and keep showing it, not the finished run's model."""
+    scene_dir, _, model = demo_scene
+    found = run_gui(PRELUDE + LOOK + f"""
+import pickle
+app = ViewerApp(Paths(data={str(scene_dir)!r}, out=str(OUT / "out")), start="reconstruct", recon_iters=20,
+                downscale=4)
+
+def test(ctx):
+    app.session.pause()                 # before its first step (the Pause button, at once)
+    wait(ctx, lambda: app.session.status().state == "paused", 180, "the paused reconstruction")
+    open_window(ctx, "Scene")
+    ctx.item_click("frustums")          # the headless reference has no camera frustums
+    ctx.item_click("stylization path")
+    ctx.item_input_value("##model", {str(model)!r})
+    ctx.item_click("Open model")        # refused while the run goes on: one line, the run keeps its model
+    found["while_running"] = app.error
+    app.error = ""
+    open_window(ctx, "Training")
+    ctx.item_click("Resume")
+    wait(ctx, lambda: app.session.status().state == "finished", 180, "the reconstruction to finish")
+    found["run_model"] = str(app.session.saved[-1])
+    open_window(ctx, "Scene")
+    ctx.item_input_value("##model", {str(model)!r})   # the run put its saved model's path there
+    ctx.item_click("Open model")
+    record("opened", ctx)
+    settle(ctx, 2.0)                    # the viewer's refreshes after the run: the picture must stay
+    record("later", ctx)
+    found["count"] = len(app.static_model)
+
+run(app, test)
+found["error"] = app.error
+Path(os.environ["RESULT"]).write_text(json.dumps(found))
+""", tmp_path, env=x11_env(x_server))
+    assert found["error"] == "", found["error"]
+    assert found["while_running"] == "open model: ValueError: a run is going: stop it (Training panel) before " \
+                                     "opening another model"
+    for name in ("opened", "later"):
+        region = np.load(tmp_path / f"{name}_region.npy")
+        with open(tmp_path / f"{name}_camera.pkl", "rb") as f:
+            camera = pickle.load(f)
+        wanted, run_model = headless_render(model, camera), headless_render(Path(found["run_model"]), camera)
+        assert float(wanted.std()) > 5 and psnr(wanted, run_model) < 20  # the two models look different here
+        value = psnr(region, wanted)
+        assert value >= 25.0, (f"{name}: the X screen does not show the opened model (PSNR {value:.1f} dB; against "
+                               f"the finished run's model {psnr(region, run_model):.1f} dB)")

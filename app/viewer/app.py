@@ -140,7 +140,15 @@ class ViewerApp(RunsMixin):
         p = Path(path)
         from app.viewer.selection import Editor
 
+        if self.session.running:
+            # the view shows the run's model at every refresh: an opened file would be drawn over at once
+            raise ValueError("a run is going: stop it (Training panel) before opening another model")
         g = read_splat(p) if p.suffix.lower() == ".splat" else read_ply(p)
+        # an ended run's model was on screen until now: from here on the view shows (and edits) the opened file
+        self.session.release()
+        self.original = None
+        self._stage = ""
+        self.training.shown_step = None
         self.source_gaussians = g
         self.scene_models = SceneModels.opened(p, len(g))
         self.training.base_model = str(p)

@@ -113,6 +113,15 @@ class LiveSession:
         self._stop.set()
         self._commands.put(("wake",))
 
+    def release(self) -> None:
+        """Forget a run that has ended: its trainer stops being the model the viewer shows and edits (opening
+        another model does this). The run's files and its curves stay."""
+        if self.running:
+            raise RuntimeError("a run is going: stop it first")
+        self._trainer = None
+        with self._lock:
+            self._status = SessionStatus()
+
     def submit(self, fn: Callable[[Any], Any]) -> Future:
         """Run ``fn(trainer)`` on the training thread between two steps (never during one) and return a Future of
         its result. Every change to a running trainer's Gaussians (deletions, crops, the stylization's region) and

@@ -77,7 +77,7 @@ def training_panel(app) -> None:
     imgui.set_item_tooltip("the share of the Gaussians (the most opaque and largest) drawn while the camera moves")
 
     imgui.separator_text("Status")
-    line = f"{status.stage or '-'}: {status.state}"
+    line = f"{status.stage}: {status.state}" if status.stage else status.state  # "idle" before any run
     if status.total:
         line += f"  {status.step}/{status.total}"
     imgui.text(line)
