@@ -112,9 +112,15 @@ def loss_curves(app) -> None:
         return
     stage = app.session.status().stage
     steps = np.array([h["step"] for h in history], dtype=np.float64)
-    if implot.begin_plot("losses", imgui.ImVec2(-1, 170)):
+    # the plot takes the panel's height left below it (the list of runs keeps its lines), never less than 170 px
+    reserve = (len(app.training.runs) + 2) * imgui.get_text_line_height_with_spacing() if app.training.runs else 0.0
+    height = max(170.0, imgui.get_content_region_avail().y - reserve)
+    if implot.begin_plot("losses", imgui.ImVec2(-1, height)):
         fit = implot.AxisFlags_.auto_fit.value  # the curves grow every step: keep them all in view
         implot.setup_axes("step", "loss", fit, fit)
+        # above the plot, in one row: inside it, the legend covered the curves of a 170 px plot
+        implot.setup_legend(implot.Location_.north.value,
+                            implot.LegendFlags_.outside.value | implot.LegendFlags_.horizontal.value)
         implot.setup_axis_scale(implot.ImAxis_.y1, implot.Scale_.log10)
         for key in CURVES.get(stage, ("loss",)):
             ys = np.array([h.get(key, np.nan) for h in history], dtype=np.float64)
