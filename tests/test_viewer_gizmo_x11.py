@@ -86,6 +86,13 @@ def test(ctx):
     found["after_crop"], found["expected_crop"], found["before_crop"] = app.editor.count, inside, count
     ctx.key_press(imgui.Key.mod_ctrl | imgui.Key.z)
     settle(ctx, 0.3)
+    found["count_after_undo"] = app.editor.count
+    ctx.key_press(imgui.Key.mod_ctrl | imgui.Key.z)  # the box drag is a step of its own
+    settle(ctx, 0.3)
+    found["box_after_second_undo"] = np.array(app.edit.box).tolist()
+    ctx.key_press(imgui.Key.mod_ctrl | imgui.Key.y)
+    settle(ctx, 0.3)
+    found["box_after_redo"] = np.array(app.edit.box).tolist()
     # the second model, turned about its centre... shown on screen, and moved by a drag
     ctx.set_ref("")
     app.gizmo.target = "model:1"
@@ -130,6 +137,10 @@ Path(os.environ["RESULT"]).write_text(json.dumps(found))
     shift = np.array(found["box_shift"])
     assert np.abs(shift[0] - shift[1]).max() < 1e-4 and np.linalg.norm(shift[0]) > 0.1  # moved, not resized
     assert found["before_crop"] > found["after_crop"] == found["expected_crop"] > 0
+    assert found["count_after_undo"] == found["before_crop"]
+    box = np.array(found["box_after_redo"]) - shift  # the box as it was before the drag
+    assert np.allclose(found["box_after_second_undo"], box, atol=1e-5)  # Ctrl+Z undid the drag
+    assert not np.allclose(found["box_after_redo"], box)  # and Ctrl+Y did it again
     assert found["model_moved"] > 0.1 and found["model_others_still"]
     assert found["camera_turned"] == 0.0
     assert found["picked"] == 1

@@ -405,9 +405,11 @@ class ViewerApp(RunsMixin):
     # ------------------------------------------------------------------ per frame
     def sync(self) -> None:
         """Drain the session's news and take a new snapshot when one is due."""
+        from app.viewer.gizmo import sync_crop_box
         from app.viewer.world_edit import sync_world
 
         sync_world(self)  # the dataset cameras follow the scene's world transform (and its undo)
+        sync_crop_box(self)  # and the crop box the undo of its drags
         for item in self.session.poll():
             if isinstance(item, SessionMessage):
                 if item.kind == "stage":

@@ -38,6 +38,8 @@ class GizmoState:
     add_path: str = ""  # the model to add, typed (the file dialog needs zenity or kdialog)
     drawn: bool = False  # the gizmo was drawn in the last frame (ImGuizmo answers "over" from its last pose)
     align: AlignState = field(default_factory=AlignState)
+    box_before: tuple | None = None  # the crop box when its drag began
+    box_shown: tuple | None = None  # the editor's "crop_box" extra that app.edit.box was last set from
 
 
 # ------------------------------------------------------------------ matrices
@@ -172,6 +174,7 @@ def view_gizmo(app, hovered: bool) -> None:
     if using and not st.dragging:
         st.dragging, st.start, st.delta = True, object_matrix(app), None
         st.mask = None if st.target == "box" else target_mask(app)
+        st.box_before = _box_value(app.edit.box) if st.target == "box" else None
     if st.dragging:
         now = _np(st.matrix)
         if st.target == "box":
@@ -188,8 +191,36 @@ def view_gizmo(app, hovered: bool) -> None:
                 from app.viewer.scene_models import transform_rows
 
                 app.guarded("move", transform_rows, app, st.mask, st.delta)
+            elif st.target == "box":
+                _record_box_drag(app, st.box_before, _box_value(app.edit.box))
             app.edit.shown_version = None  # the preview goes; the editor's model (moved or not) is shown
             st.delta = st.mask = None
+
+
+def _box_value(box) -> tuple | None:
+    return None if box is None else tuple(tuple(float(v) for v in corner) for corner in box)
+
+
+def _record_box_drag(app, before: tuple | None, after: tuple | None) -> None:
+    """One undo step for a crop-box drag: the box lives in the editor's history as the "crop_box" extra, so
+    Ctrl+Z puts it back where the drag began (sync_crop_box moves app.edit.box)."""
+    ed = app.editor
+    if ed is None or before is None or after is None or np.allclose(before, after):
+        return
+    ed.extras = {**ed.extras, "crop_box": before}  # the state an undo returns to has the box before the drag
+    ed.set_extra("crop_box", after)
+    app.gizmo.box_shown = after
+
+
+def sync_crop_box(app) -> None:
+    """Per frame: after an undo or redo the crop box is the one of that step (a box typed in the Edit panel since
+    stays until then)."""
+    ed = app.editor
+    value = None if ed is None else ed.extras.get("crop_box")
+    if value is not app.gizmo.box_shown:
+        app.gizmo.box_shown = value
+        if value is not None:
+            app.edit.box = [list(value[0]), list(value[1])]
 
 
 def _preview(app, delta: np.ndarray) -> None:
