@@ -104,3 +104,14 @@ def test_custom_iterations_stretch_the_schedule_as_on_the_cli(scene_dir, tmp_pat
     d = trainer.config.densify
     assert (trainer.config.iterations, d.start, d.stop, d.interval, d.reset_every) == (2500, 125, 1250, 84, 750)
     assert trainer.config.sh_interval == 250
+
+
+def test_each_stage_has_its_own_curves(scene_dir, tmp_path):
+    # two stages in one run (as Reconstruct + stylize): the curves show the stage that runs, its steps in order
+    session = LiveSession()
+    session.start([reconstruct_stage(scene_dir, tmp_path / "a", preset="quick", downscale=4, iterations=6),
+                   reconstruct_stage(scene_dir, tmp_path / "b", preset="quick", downscale=4, iterations=4)])
+    wait(lambda: not session.running, 120, "the two stages")
+    assert session.status().state == "finished"
+    steps = [h["step"] for h in session.history]
+    assert steps == sorted(set(steps)) and len(steps) == 4, steps

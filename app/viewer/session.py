@@ -255,6 +255,9 @@ class LiveSession:
             with self._lock:
                 self._status.stage = stage.name
             self._out.put(SessionMessage("stage", stage.name, stage.name))
+            # each stage's curves start afresh: a stylization's steps count from 0 again, and its "loss" joined to
+            # the reconstruction's drew a line back across the plot
+            self.history.clear()
             self._set(state="loading")
             trainer = None
             try:
