@@ -394,6 +394,15 @@ def test(ctx):
         ctx.item_click("Export")
         open_window(ctx, "Colour")
     found["undo_steps"] = len(app.editor.undo_stack)
+    # the run's result opened from the Training panel's list: shown as it was when stopped, its original offered
+    open_window(ctx, "Training")
+    ctx.item_click("Open##run0")
+    found["opened"] = app.paths.model
+    found["running_trainer"] = app.session.trainer is not None
+    np.save(OUT / "opened_run.npy", still(ctx))
+    open_window(ctx, "Colour")
+    ctx.yield_(2)
+    found["original_offered"] = app.colour.original_input
 
 run(app, test)
 found["error"] = app.error
@@ -414,3 +423,6 @@ Path(os.environ["RESULT"]).write_text(json.dumps(found))
     assert torch.equal(read_ply(tmp_path / "strength_1.ply").sh, saved.sh)
     assert not torch.equal(original.sh, saved.sh)
     assert found["undo_steps"] == 4  # each strength typed in is one undo step
+    assert found["opened"] == found["runs"][-1] and not found["running_trainer"]
+    assert np.array_equal(np.load(tmp_path / "opened_run.npy").astype(np.int16), stylized)
+    assert found["original_offered"] == str(model)

@@ -32,6 +32,7 @@ class RunsMixin:
         else:
             self.training.base_model = path
             self.paths.model = path
+            self.colour.stylized_from = path  # a stylization started from it offers it as the original
         self.say(f"saved {path}")
 
     def start_reconstruction(self, then_stylize: bool = False) -> None:

@@ -98,8 +98,14 @@ def training_panel(app) -> None:
     loss_curves(app)
     if app.training.runs:
         imgui.separator_text("Stylized runs")
-        for path in app.training.runs:
+        imgui.begin_disabled(app.session.running)
+        for i, path in enumerate(app.training.runs):
+            # the run's result as the opened model: the editor, gizmo, colour and export act on it
+            if imgui.small_button(f"Open##run{i}"):
+                app.guarded("open model", app.open_model, str(path))
+            imgui.same_line()
             imgui.text(str(path))
+        imgui.end_disabled()
 
 
 CURVES = {"reconstruct": ("loss", "l1", "depth", "shape", "size"),
