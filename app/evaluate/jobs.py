@@ -18,7 +18,9 @@ from typing import Any
 
 from app.evaluate.grid import Job, job_dir
 from training.core.atomic_write import atomic_open
+from training.evaluate.colour_shift import colour_shift
 from training.evaluate.measure import METRICS_VERSION
+from training.model.ply_io import read_ply
 
 RECON_CHECKPOINT_EVERY = 250
 
@@ -168,5 +170,7 @@ def _cell(job: Job, out: Path, log_path: Path) -> dict[str, Any]:
     metrics["iterations"] = report.get("iterations")
     for key in ("test_psnr", "test_ssim", "num_gaussians", "aniso_p95", "smax_p95"):
         metrics[f"recon_{key}"] = recon_report.get(key)
+    if spec["method"] != "2d" and (folder / "point_cloud.ply").is_file():
+        metrics.update(colour_shift(read_ply(recon / "point_cloud.ply"), read_ply(folder / "point_cloud.ply")))
     return {"metrics": metrics, "metrics_version": report.get("metrics_version"), "renders": report.get("renders", []),
             "folder": str(folder)}
