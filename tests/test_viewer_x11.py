@@ -378,7 +378,6 @@ def test(ctx):
     record("opened", ctx)
     settle(ctx, 2.0)                    # the viewer's refreshes after the run: the picture must stay
     record("later", ctx)
-    found["count"] = len(app.static_model)
 
 run(app, test)
 found["error"] = app.error
