@@ -3,7 +3,25 @@ reads. (The trainers' warnings also go through Python's warnings, which the CLI 
 
 from __future__ import annotations
 
+import sys
+
 from training.core.messages import TrainerEvent
+
+# A bar redrawn ten times a second is right on a terminal; in a log file (SLURM, `> run.log`, an eval grid's job
+# logs) every redraw is kept, and a run's log grows by hundreds of KB. Off a terminal the bar is written at most
+# this often: a run's log keeps its progress, a line's worth every half minute.
+LOG_INTERVAL_S = 30.0
+
+
+def redraw_timing(stream=None) -> dict[str, float]:
+    """tqdm's ``mininterval`` and ``maxinterval`` for a bar written to ``stream`` (default: stderr)."""
+    stream = sys.stderr if stream is None else stream
+    try:
+        tty = stream.isatty()
+    except (AttributeError, ValueError):  # a closed or file-less stream
+        tty = False
+    return {"mininterval": 0.1, "maxinterval": 10.0} if tty else {"mininterval": LOG_INTERVAL_S,
+                                                                    "maxinterval": LOG_INTERVAL_S}
 
 
 class ProgressBar:
@@ -27,7 +45,7 @@ class ProgressBar:
             from tqdm import tqdm
 
             self.bar = tqdm(total=total, initial=self.initial, desc=self.desc, unit="it", disable=self.disable,
-                            dynamic_ncols=True)
+                            dynamic_ncols=True, **redraw_timing())
         elif total is not None and total != self.bar.total:
             self.bar.total = total
         if not m.get("recovered", 0.0):

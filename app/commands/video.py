@@ -127,7 +127,9 @@ def run(args: argparse.Namespace) -> int:
     renderer = SplatRenderer(ctx, sort_tolerance_deg=0.0)  # every frame sorted for its own view: no stale order
     from tqdm import tqdm
 
-    bar = tqdm(total=len(cameras), desc="video", unit="frame", dynamic_ncols=True)
+    from app.progress import redraw_timing
+
+    bar = tqdm(total=len(cameras), desc="video", unit="frame", dynamic_ncols=True, **redraw_timing())
     try:
         if other is not None:  # the divider shows slot 0 left: the original (before) there, MODEL (after) right
             renderer.set_splats(*other[:5], other[5], slot=0)
