@@ -161,6 +161,58 @@ Path(os.environ["RESULT"]).write_text(json.dumps(found))
     assert np.allclose(np.sort(exported["x"])[-1], after["means"][:, 0].max(), atol=1e-5)
 
 
+def test_numbers_typed_in_the_box_fields_are_undo_steps_and_crop_uses_them(demo_scene, tmp_path):
+    """The crop box typed in the Edit panel, one number in each field: each number's typing is one undo step (not
+    one per digit), Ctrl+Z puts the box back step by step, Ctrl+Y types it again, and Crop uses the box shown."""
+    _, _, model = demo_scene
+    found = run_gui(PRELUDE + f"""
+from imgui_bundle import imgui
+app = ViewerApp(Paths(model={str(model)!r}, out=str(OUT / "out")))
+
+def box():
+    return [list(map(float, side)) for side in app.edit.box]
+
+def test(ctx):
+    wait(ctx, lambda: app.view is not None and app.view.has_model(0), 60, "the model")
+    open_window(ctx, "Edit")
+    ed = app.editor
+    found["start"] = box()
+    lo, hi = found["start"]
+    steps = len(ed.undo_stack)
+    ctx.item_input_value("box min/$$0", round(lo[0] + 0.25 * (hi[0] - lo[0]), 2))
+    found["after_min"] = box()
+    ctx.item_input_value("box max/$$2", round(hi[2] - 0.25 * (hi[2] - lo[2]), 2))
+    found["typed"] = box()
+    found["undo_steps"] = len(ed.undo_stack) - steps
+    ctx.set_ref("")
+    for name, keys in (("undo_1", imgui.Key.z), ("undo_2", imgui.Key.z), ("redo_1", imgui.Key.y),
+                       ("redo_2", imgui.Key.y)):
+        ctx.key_press(imgui.Key.mod_ctrl | keys)
+        settle(ctx, 0.2)
+        found[name] = box()
+    count = ed.count
+    inside = np.all((ed.model.means >= np.array(box()[0])) & (ed.model.means <= np.array(box()[1])), axis=1)
+    open_window(ctx, "Edit")
+    ctx.item_click("Crop to box")
+    found["crop"] = [count, int(inside.sum()), ed.count]
+
+run(app, test)
+found["error"] = app.error
+Path(os.environ["RESULT"]).write_text(json.dumps(found))
+""", tmp_path)
+    assert found["error"] == "", found["error"]
+    start, after_min, typed = (np.array(found[k]) for k in ("start", "after_min", "typed"))
+    assert after_min[0, 0] > start[0, 0] + 0.1 and typed[1, 2] < start[1, 2] - 0.1  # the numbers went in
+    assert np.array_equal(typed[0], after_min[0]) and np.array_equal(after_min[1], start[1])
+    assert found["undo_steps"] == 2  # one step a number, whatever the digits typed
+    np.testing.assert_allclose(found["undo_1"], after_min, atol=1e-6)
+    np.testing.assert_allclose(found["undo_2"], start, atol=1e-6)
+    np.testing.assert_allclose(found["redo_1"], after_min, atol=1e-6)
+    np.testing.assert_allclose(found["redo_2"], typed, atol=1e-6)
+    before, inside, after = found["crop"]
+    assert before > after == inside > 0  # Crop kept what the typed box holds
+
+
 @pytest.mark.slow
 def test_a_second_model_moved_by_the_gizmo_exports_and_bakes_as_one_model(demo_scene, tmp_path):
     """A PLY dropped while a model is open joins the scene; the gizmo moves, turns (30 degrees along its ring) and

@@ -12,8 +12,9 @@ from imgui_bundle import imgui
 
 from app.viewer import select_tools_panel
 from app.viewer import selection as sel
+from app.viewer.gizmo import box_value, record_box_change
+from app.viewer.state import TOOLS
 
-from app.viewer.state import TOOLS  # noqa: E402
 GREY = imgui.ImVec4(0.6, 0.6, 0.6, 1.0)
 
 
@@ -113,8 +114,15 @@ def edit_panel(app) -> None:
     if box is None:
         lo, hi = ed.model.means.min(axis=0), ed.model.means.max(axis=0)
         box = app.edit.box = [list(map(float, lo)), list(map(float, hi))]
-    changed, box[0] = imgui.input_float3("box min", box[0])
-    changed, box[1] = imgui.input_float3("box max", box[1])
+    for side, label in enumerate(("box min", "box max")):
+        shown = box_value(box)
+        _, box[side] = imgui.input_float3(label, box[side])
+        # the fields change the box as each digit is typed; the undo step is a number's whole typing, from clicking
+        # into it to leaving it (Enter, Tab to the next number, a click elsewhere)
+        if imgui.is_item_deactivated_after_edit():
+            record_box_change(app, app.edit.box_typed_from, box_value(box))
+        if imgui.is_item_activated():
+            app.edit.box_typed_from = shown
     if imgui.button("Select in box"):
         app.guarded("select", lambda: ed.select(sel.in_box(ed.model.means, np.array(box[0]), np.array(box[1])),
                                                 app.edit.select_mode))

@@ -174,7 +174,7 @@ def view_gizmo(app, hovered: bool) -> None:
     if using and not st.dragging:
         st.dragging, st.start, st.delta = True, object_matrix(app), None
         st.mask = None if st.target == "box" else target_mask(app)
-        st.box_before = _box_value(app.edit.box) if st.target == "box" else None
+        st.box_before = box_value(app.edit.box) if st.target == "box" else None
     if st.dragging:
         now = _np(st.matrix)
         if st.target == "box":
@@ -192,18 +192,19 @@ def view_gizmo(app, hovered: bool) -> None:
 
                 app.guarded("move", transform_rows, app, st.mask, st.delta)
             elif st.target == "box":
-                _record_box_drag(app, st.box_before, _box_value(app.edit.box))
+                record_box_change(app, st.box_before, box_value(app.edit.box))
             app.edit.shown_version = None  # the preview goes; the editor's model (moved or not) is shown
             st.delta = st.mask = None
 
 
-def _box_value(box) -> tuple | None:
+def box_value(box) -> tuple | None:
     return None if box is None else tuple(tuple(float(v) for v in corner) for corner in box)
 
 
-def _record_box_drag(app, before: tuple | None, after: tuple | None) -> None:
-    """One undo step for a crop-box drag: the box lives in the editor's history as the "crop_box" extra, so
-    Ctrl+Z puts it back where the drag began (sync_crop_box moves app.edit.box)."""
+def record_box_change(app, before: tuple | None, after: tuple | None) -> None:
+    """One undo step for a crop-box change (a gizmo drag, or numbers typed in the Edit panel): the box lives in the
+    editor's history as the "crop_box" extra, so Ctrl+Z puts it back where the change began (sync_crop_box moves
+    app.edit.box)."""
     ed = app.editor
     if ed is None or before is None or after is None or np.allclose(before, after):
         return
@@ -213,8 +214,7 @@ def _record_box_drag(app, before: tuple | None, after: tuple | None) -> None:
 
 
 def sync_crop_box(app) -> None:
-    """Per frame: after an undo or redo the crop box is the one of that step (a box typed in the Edit panel since
-    stays until then)."""
+    """Per frame: after an undo or redo the crop box is the one of that step."""
     ed = app.editor
     value = None if ed is None else ed.extras.get("crop_box")
     if value is not app.gizmo.box_shown:

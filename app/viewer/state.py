@@ -20,6 +20,7 @@ class EditTools:
     brush_radius: float = 30.0
     gesture: list[tuple[float, float]] = field(default_factory=list)  # the drag under way (window coordinates)
     box: list | None = None  # [[x0, y0, z0], [x1, y1, z1]] typed in the panel (world units)
+    box_typed_from: tuple | None = None  # the box when typing in its fields began (for the undo step)
     sphere: list | None = None  # [[x, y, z], radius]
     live: bool = False  # the editor edits the running trainer's model
     region: str = "all"  # which Gaussians a stylization may change: all | selection | unselected
