@@ -95,6 +95,33 @@ def unavailable(path: str, ctx) -> str | None:
     return None
 
 
+def _offscreen(ctx, draw: Callable, release_drawer: Callable) -> tuple[Callable, Callable]:
+    """A candidate's (frame, release): ``draw(camera, fbo)`` into a framebuffer of the camera's size, waiting for
+    the GPU, as the viewer's view does."""
+    target = {}
+
+    def release_target():
+        if "fbo" in target:
+            target.pop("fbo").release()
+            target.pop("tex").release()
+
+    def frame(camera):
+        size = (int(camera.width), int(camera.height))
+        if target.get("size") != size:
+            release_target()
+            target["tex"] = ctx.texture(size, 4)
+            target["fbo"] = ctx.framebuffer(color_attachments=[target["tex"]])
+            target["size"] = size
+        draw(camera, target["fbo"])
+        ctx.finish()
+
+    def release():
+        release_drawer()
+        release_target()
+
+    return frame, release
+
+
 def gl_candidate(ctx, snap, path: str, accum_dtype: str) -> Candidate:
     def make():
         from renderer_gl import SplatRenderer
@@ -102,27 +129,7 @@ def gl_candidate(ctx, snap, path: str, accum_dtype: str) -> Candidate:
         r = SplatRenderer(ctx, accum_dtype=accum_dtype, sort_on={"gl-cpu-sort": "cpu", "gl-gpu-sort": "gpu"}[path],
                           sort_tolerance_deg=0.0)
         r.set_splats(snap.means, snap.scales, snap.quats, snap.opacities, snap.sh, snap.sh_degree)
-        target = {}
-
-        def frame(camera):
-            size = (int(camera.width), int(camera.height))
-            if target.get("size") != size:
-                if "fbo" in target:
-                    target["fbo"].release()
-                    target["tex"].release()
-                target["tex"] = ctx.texture(size, 4)
-                target["fbo"] = ctx.framebuffer(color_attachments=[target["tex"]])
-                target["size"] = size
-            r.render(camera, target["fbo"])
-            ctx.finish()
-
-        def release():
-            r.release()
-            if "fbo" in target:
-                target["fbo"].release()
-                target["tex"].release()
-
-        return frame, release
+        return _offscreen(ctx, r.render, r.release)
 
     return Candidate(path, accum_dtype, make)
 
@@ -134,27 +141,7 @@ def cuda_candidate(ctx, snap, backend: str = "cuda") -> Candidate:
 
         d = CudaDisplay(ctx, backend=backend)
         d.set_model(snap)
-        target = {}
-
-        def frame(camera):
-            size = (int(camera.width), int(camera.height))
-            if target.get("size") != size:
-                if "fbo" in target:
-                    target["fbo"].release()
-                    target["tex"].release()
-                target["tex"] = ctx.texture(size, 4)
-                target["fbo"] = ctx.framebuffer(color_attachments=[target["tex"]])
-                target["size"] = size
-            d.draw(camera, target["fbo"])
-            ctx.finish()
-
-        def release():
-            d.release()
-            if "fbo" in target:
-                target["fbo"].release()
-                target["tex"].release()
-
-        return frame, release
+        return _offscreen(ctx, d.draw, d.release)
 
     return Candidate("cuda", None, make)
 
