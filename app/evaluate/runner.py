@@ -129,6 +129,26 @@ class RayPool:
         pass  # the cluster outlives the grid; a local instance ends with this process
 
 
+def time_left(results: dict[str, dict[str, Any]], jobs: dict[str, Job], remaining: list[Job],
+              capacity: int) -> float | None:
+    """About how many seconds ``remaining`` will take on ``capacity`` workers: each job at the mean recorded time of
+    finished jobs of its kind on the same scene (else of its kind), shared evenly by the workers. None while some
+    kind has no finished job to go by."""
+    samples: dict[tuple, list[float]] = {}
+    for jid, r in results.items():
+        if r.get("status") == "ok" and r.get("seconds") and jid in jobs:
+            kind, scene = jobs[jid].kind, jobs[jid].spec.get("scene")
+            samples.setdefault((kind, scene), []).append(float(r["seconds"]))
+            samples.setdefault((kind, None), []).append(float(r["seconds"]))
+    total = 0.0
+    for job in remaining:
+        seen = samples.get((job.kind, job.spec.get("scene"))) or samples.get((job.kind, None))
+        if not seen:
+            return None
+        total += sum(seen) / len(seen)
+    return total / max(1, capacity)
+
+
 def run_grid(grid: Grid, out: Path, pool, log: Callable[[str], None] = print,
              only: Callable[[Job], bool] | None = None) -> dict[str, dict[str, Any]]:
     """Run every job of ``grid`` without an "ok" record (those ``only`` accepts, and what they need) on ``pool``;
@@ -180,7 +200,9 @@ def run_grid(grid: Grid, out: Path, pool, log: Callable[[str], None] = print,
                 finished += 1
                 what = f"failed: {result.get('error')}" if result.get("status") != "ok" else \
                     f"ok in {result.get('seconds', 0):.0f} s"
-                log(f"[{finished}/{len(todo)}] {job.id}: {what} ({(time.perf_counter() - t0) / 60:.1f} min)")
+                left = time_left(results, by_id, pending + list(running.values()), pool.capacity)
+                eta = "" if left is None or not (pending or running) else f"; about {left / 60:.0f} min left"
+                log(f"[{finished}/{len(todo)}] {job.id}: {what} ({(time.perf_counter() - t0) / 60:.1f} min{eta})")
     except KeyboardInterrupt:
         pool.close(cancel=True)
         log("eval: interrupted; finished jobs are recorded, run the same command again to continue")
