@@ -196,21 +196,25 @@ def test_a_grid_killed_with_sigkill_resumes_losing_only_the_running_job(tmp_path
         assert rec["status"] == "ok"
 
 
-def test_time_left_goes_by_the_recorded_jobs_of_the_same_kind_and_scene():
+def test_time_left_goes_by_the_recorded_jobs_most_like_each_one_left():
     from app.evaluate.grid import Job
     from app.evaluate.runner import time_left
 
+    def cell(scene, setting, seed):
+        return Job(f"cell/{scene}/{setting}/{seed}", "cell", {"scene": scene, "setting": setting})
+
     jobs = {j.id: j for j in (
-        Job("reconstruct/fern", "reconstruct", {"scene": "fern"}),
-        Job("cell/fox/a", "cell", {"scene": "fox"}), Job("cell/fox/b", "cell", {"scene": "fox"}),
-        Job("cell/fern/a", "cell", {"scene": "fern"}), Job("cell/fern/b", "cell", {"scene": "fern"}),
-        Job("cell/flower/a", "cell", {"scene": "flower"}), Job("sfm/flower", "sfm", {"scene": "flower"}))}
+        Job("reconstruct/fern", "reconstruct", {"scene": "fern"}), cell("fox", "sh", 0), cell("fox", "sh", 1),
+        cell("fern", "sh", 0), cell("fern", "all", 0), cell("fern", "all", 1), cell("fern", "dc", 0),
+        cell("flower", "sh", 0), Job("sfm/flower", "sfm", {"scene": "flower"}))}
     results = {"reconstruct/fern": {"status": "ok", "seconds": 300.0},
-               "cell/fox/a": {"status": "ok", "seconds": 300.0}, "cell/fox/b": {"status": "ok", "seconds": 320.0},
-               "cell/fern/a": {"status": "ok", "seconds": 600.0},
-               "cell/flower/a": {"status": "failed", "error": "x", "seconds": 5.0}}
-    # a fern cell at fern's mean; a flower cell (none finished) at the mean of every finished cell
-    left = time_left(results, jobs, [jobs["cell/fern/b"], jobs["cell/flower/a"]], capacity=2)
-    assert left == pytest.approx((600.0 + (300.0 + 320.0 + 600.0) / 3) / 2)
+               "cell/fox/sh/0": {"status": "ok", "seconds": 300.0}, "cell/fox/sh/1": {"status": "ok", "seconds": 320.0},
+               "cell/fern/sh/0": {"status": "ok", "seconds": 250.0}, "cell/fern/all/0": {"status": "ok", "seconds": 600.0},
+               "cell/flower/sh/0": {"status": "failed", "error": "x", "seconds": 5.0}}
+    # a fern "all" cell at fern's "all" cells; a fern "dc" cell at fern's cells; a flower cell (none finished) at
+    # every finished cell; shared by two workers
+    left = time_left(results, jobs, [jobs["cell/fern/all/1"], jobs["cell/fern/dc/0"], jobs["cell/flower/sh/0"]],
+                     capacity=2)
+    assert left == pytest.approx((600.0 + (250.0 + 600.0) / 2 + (300.0 + 320.0 + 250.0 + 600.0) / 4) / 2)
     assert time_left(results, jobs, [jobs["sfm/flower"]], capacity=1) is None  # no SfM finished to go by
     assert time_left(results, jobs, [], capacity=1) == 0.0

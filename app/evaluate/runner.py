@@ -132,18 +132,22 @@ class RayPool:
 def time_left(results: dict[str, dict[str, Any]], jobs: dict[str, Job], remaining: list[Job],
               capacity: int) -> float | None:
     """About how many seconds ``remaining`` will take on ``capacity`` workers: each job at the mean recorded time of
-    finished jobs of its kind on the same scene (else of its kind), shared evenly by the workers. None while some
-    kind has no finished job to go by."""
+    the finished jobs most like it (same kind, scene and setting; else same kind and scene; else same kind: a cell
+    that moves the geometry takes twice a colour-only one), shared evenly by the workers. None while some kind has
+    no finished job to go by."""
+    def keys(job: Job) -> list[tuple]:
+        scene, setting = job.spec.get("scene"), job.spec.get("setting")
+        return [(job.kind, scene, setting), (job.kind, scene, None), (job.kind, None, None)]
+
     samples: dict[tuple, list[float]] = {}
     for jid, r in results.items():
         if r.get("status") == "ok" and r.get("seconds") and jid in jobs:
-            kind, scene = jobs[jid].kind, jobs[jid].spec.get("scene")
-            samples.setdefault((kind, scene), []).append(float(r["seconds"]))
-            samples.setdefault((kind, None), []).append(float(r["seconds"]))
+            for key in set(keys(jobs[jid])):
+                samples.setdefault(key, []).append(float(r["seconds"]))
     total = 0.0
     for job in remaining:
-        seen = samples.get((job.kind, job.spec.get("scene"))) or samples.get((job.kind, None))
-        if not seen:
+        seen = next((samples[k] for k in keys(job) if k in samples), None)
+        if seen is None:
             return None
         total += sum(seen) / len(seen)
     return total / max(1, capacity)
