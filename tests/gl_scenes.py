@@ -42,7 +42,7 @@ def reference_render(means, scales, quats, opac, sh, sh_degree, w2c, K, width, h
 
     from training.raster.rasterize import rasterize
 
-    t = lambda a: torch.as_tensor(np.asarray(a, np.float32))  # noqa: E731
+    t = lambda a: torch.as_tensor(np.array(a, np.float32))  # a copy: snapshots are read-only  # noqa: E731
     img, alpha, _ = rasterize(t(means), t(quats), t(scales), t(opac), t(sh), t(w2c), t(K), width, height,
                               sh_degree=sh_degree, background=t(background), render_mode=mode, backend=backend)
     return img.numpy(), alpha[..., 0].numpy()
