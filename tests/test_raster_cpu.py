@@ -248,13 +248,49 @@ def test_frozen_geometry_replay_is_bit_identical(sh_degree, mode):
     weights = torch.rand(h, w, 4, generator=torch.Generator().manual_seed(seed))
     FROZEN.clear()
     cached = [_colour_step(scene, w, h, sh_degree, mode, scene[4] * (1 + 0.1 * i), weights) for i in range(4)]
-    entry = FROZEN._entry
+    entry = FROZEN.newest
     assert entry is not None and entry.fwd is not None and entry.bwd is not None  # the later steps replayed
     for i, got in enumerate(cached):
         FROZEN.clear()
         ref = _colour_step(scene, w, h, sh_degree, mode, scene[4] * (1 + 0.1 * i), weights)
         for a, b in zip(got, ref):
             assert torch.equal(a, b), i
+
+
+def test_frozen_geometry_is_kept_for_every_view_of_a_cycle():
+    """An interleaved stylization renders view 0, 1, 2, 0, 1, 2, ...: each camera keeps its own entry (one copy of
+    the geometry), records on its second visit and replays from its third, bit-identical to uncached renders. Past
+    the cache's budget the first views stay served and the others are computed each time, still exactly."""
+    from training.raster.cpu import FROZEN
+
+    seed = fresh_seed("cpu-replay-cycle")
+    w, h = 48, 40
+    scene = random_scene(1500, w, h, seed, sh_degree=3, log_scale_mean=-3.0)
+    weights = torch.rand(h, w, 4, generator=torch.Generator().manual_seed(seed))
+    views = []
+    for k in range(3):  # the same camera turned a little about its y axis
+        a = 0.05 * k
+        turn = torch.tensor([[np.cos(a), 0, np.sin(a), 0], [0, 1, 0, 0], [-np.sin(a), 0, np.cos(a), 0], [0, 0, 0, 1]],
+                            dtype=scene[5].dtype)
+        views.append((*scene[:5], turn @ scene[5], scene[6]))
+    budget = FROZEN.max_bytes
+    try:
+        for max_bytes, kept in ((budget, 3), (1, 1)):
+            FROZEN.clear()
+            FROZEN.max_bytes = max_bytes
+            cached = [_colour_step(views[i % 3], w, h, 3, "RGB", scene[4] * (1 + 0.1 * i), weights) for i in range(9)]
+            assert len(FROZEN) == kept
+            entries = FROZEN.entries()
+            assert all(e.fwd is not None and e.bwd is not None for e in entries) == (kept == 3)
+            assert all(e.key_arrays[0] is entries[0].key_arrays[0] for e in entries)  # one geometry copy
+            for i, got in enumerate(cached):
+                FROZEN.clear()
+                ref = _colour_step(views[i % 3], w, h, 3, "RGB", scene[4] * (1 + 0.1 * i), weights)
+                for a, b in zip(got, ref):
+                    assert torch.equal(a, b), (max_bytes, i)
+    finally:
+        FROZEN.max_bytes = budget
+        FROZEN.clear()
 
 
 def test_frozen_geometry_changed_in_place_is_not_reused():

@@ -2,14 +2,16 @@
 
 With geometry that needs no gradient, everything but the colours is a function of the geometry and the camera:
 projection, depth order, tile lists, each pixel's final transmittance, and every composited pair's weight a T
-(forward, float32) and its recovered weight (backward, float64). A stylization step renders the same view
-15 to 50 times in a row, so ``FrozenCache`` keeps one entry: the inputs it was computed from (compared bit for bit
-on every call, so a changed model or camera is never served stale results), the screen-space state, and, from
-the second call on, the composited pairs' weights. Then the forward is a weighted sum of the colours over those
-pairs and the colour backward its transpose: the same float operations in the same order as the compositing
-kernels, so images and gradients are bit-identical to a render without the cache (tests/test_raster_cpu.py).
+(forward, float32) and its recovered weight (backward, float64). A stylization renders each view of its trajectory
+many times (a new view every step, passes along the trajectory), so ``FrozenCache`` keeps an entry per
+(geometry, camera): the inputs it was computed from (compared bit for bit on every call, so a changed model or
+camera is never served stale results), the screen-space state, and, from the second call on, the composited pairs'
+weights. Then the forward is a weighted sum of the colours over those pairs and the colour backward its transpose:
+the same float operations in the same order as the compositing kernels, so images and gradients are bit-identical
+to a render without the cache (tests/test_raster_cpu.py).
 
-The weights cost 12 bytes per composited pair and direction; past ``MAX_PAIRS`` they are not kept.
+The weights cost 12 bytes per composited pair and direction; past ``MAX_PAIRS`` an entry keeps none. The entries
+together hold at most ``MAX_BYTES`` (what does not fit is computed each time); they share one copy of the geometry.
 """
 
 from __future__ import annotations
@@ -22,6 +24,9 @@ from numba import njit, prange
 from training.raster.cpu_jit import JIT
 
 MAX_PAIRS = 8_000_000  # per direction: at most ~100 MB of forward and ~100 MB of backward weights
+RECORD_BYTES = 12  # a recorded pair, in either direction
+# All entries together (measured: the fox's 67 views at 256 px with ~40k Gaussians take about ... MB).
+MAX_BYTES = 1 << 30
 
 
 def _same(a: np.ndarray, b: np.ndarray) -> bool:
@@ -33,8 +38,11 @@ def _same(a: np.ndarray, b: np.ndarray) -> bool:
 class FrozenEntry:
     """One (geometry, camera): the inputs' copies, the projection and binning, then what later calls record."""
 
-    def __init__(self, key_arrays, params, proj):
-        self.key_arrays = [np.array(a, copy=True) for a in key_arrays]
+    def __init__(self, key_arrays, params, proj, shared_geometry=None):
+        """``key_arrays``: (means, quats, scales, opacities, view, K); ``shared_geometry``: another entry whose copy
+        of the first four equals them bit for bit (kept once, not copied again)."""
+        geometry = shared_geometry or [np.array(a, copy=True) for a in key_arrays[:4]]
+        self.key_arrays = list(geometry) + [np.array(a, copy=True) for a in key_arrays[4:]]
         self.params = params
         self.proj = proj  # (means2d, conics, depths, radii, order, offsets, ids, rec)
         self.out_t = None  # (H, W) float32 final transmittance, after the first forward
@@ -42,42 +50,112 @@ class FrozenEntry:
         self.tile_pairs = None  # composited pairs per tile, after the first forward
         self.fwd = None  # (rec_off, rec_p, rec_g, rec_w) once recorded
         self.bwd = None  # (j_start, j_count, rec_pix, rec_w) once recorded
+        self.cache: FrozenCache | None = None  # the cache that keeps it (None: used for one call only)
 
     def matches(self, key_arrays, params) -> bool:
-        return params == self.params and all(_same(a, b) for a, b in zip(key_arrays, self.key_arrays))
+        return (params == self.params and self.same_camera(key_arrays)
+                and all(_same(a, b) for a, b in zip(key_arrays[:4], self.key_arrays[:4])))
+
+    def same_camera(self, key_arrays) -> bool:
+        return all(_same(a, b) for a, b in zip(key_arrays[4:], self.key_arrays[4:]))
+
+    def same_geometry(self, key_arrays) -> bool:
+        return all(_same(a, b) for a, b in zip(key_arrays[:4], self.key_arrays[:4]))
+
+    def nbytes(self, with_geometry: bool = True) -> int:
+        arrays = list(self.proj) + [self.out_t] + list(self.fwd or ()) + list(self.bwd or ())
+        if with_geometry:
+            arrays += self.key_arrays[:4]
+        return sum(a.nbytes for a in arrays if isinstance(a, np.ndarray))
 
     def record_offsets(self):
-        """Where each tile's records start, and their total, or None before the first forward or when the
-        records would take too much memory. The backward touches exactly the pairs the forward composited
-        (same float operations decide), so both directions need this many."""
-        if self.tile_pairs is None:
+        """Where each tile's records start, and their total, or None before the first forward, for an entry its
+        cache did not keep, or when the records would take too much memory (``MAX_PAIRS``, or more than the cache
+        has room for). The backward touches exactly the pairs the forward composited (same float operations
+        decide), so both directions need this many."""
+        if self.tile_pairs is None or self.cache is None:
             return None
         off = np.zeros(self.tile_pairs.size + 1, np.int64)
         np.cumsum(self.tile_pairs, out=off[1:])
-        return (off, int(off[-1])) if off[-1] <= MAX_PAIRS else None
+        total = int(off[-1])
+        if total > MAX_PAIRS or not self.cache.room_for(off.nbytes + total * RECORD_BYTES):
+            return None
+        return off, total
 
 
 class FrozenCache:
-    """A single-entry cache, safe to share between threads (an entry's fields are written once, then read)."""
+    """Entries per (geometry, camera) of one geometry, safe to share between threads (an entry's fields are written
+    once, then read). Storing an entry of another geometry drops the others (a changed model never comes back bit
+    for bit). Past ``max_bytes`` nothing more is kept: new cameras are not stored and entries record no weights.
+    Not least-recently-used eviction: a stylization visits its views in a cycle, where LRU with room for fewer
+    entries than views would never hit; keeping the first ones serves those at every pass."""
 
-    def __init__(self):
+    def __init__(self, max_bytes: int = MAX_BYTES):
+        self.max_bytes = max_bytes
         self._lock = threading.Lock()
-        self._entry: FrozenEntry | None = None
+        self._entries: list[FrozenEntry] = []
+        self._newest: FrozenEntry | None = None
+
+    @property
+    def newest(self) -> FrozenEntry | None:
+        """The entry last stored or served (None when empty)."""
+        with self._lock:
+            return self._newest
+
+    def __len__(self) -> int:
+        with self._lock:
+            return len(self._entries)
+
+    def entries(self) -> list[FrozenEntry]:
+        """The entries kept, oldest first (a copy of the list)."""
+        with self._lock:
+            return list(self._entries)
+
+    def nbytes(self) -> int:
+        with self._lock:
+            return self._total()
+
+    def _total(self) -> int:
+        return sum(e.nbytes(with_geometry=k == 0) for k, e in enumerate(self._entries))
 
     def lookup(self, key_arrays, params) -> FrozenEntry | None:
         with self._lock:
-            entry = self._entry
-        return entry if entry is not None and entry.matches(key_arrays, params) else None
+            entries = list(self._entries)
+        if not entries or not entries[0].same_geometry(key_arrays):
+            return None
+        for entry in entries:  # one geometry: the camera tells the entries apart
+            if entry.params == params and entry.same_camera(key_arrays):
+                with self._lock:
+                    self._newest = entry
+                return entry
+        return None
 
     def store(self, key_arrays, params, proj) -> FrozenEntry:
-        entry = FrozenEntry(key_arrays, params, proj)
+        """A new entry, kept when there is room (else it serves only the call that made it)."""
         with self._lock:
-            self._entry = entry
+            entries = list(self._entries)
+        same = bool(entries) and entries[0].same_geometry(key_arrays)
+        entry = FrozenEntry(key_arrays, params, proj, shared_geometry=entries[0].key_arrays[:4] if same else None)
+        entry.cache = self
+        with self._lock:
+            if not same:
+                self._entries = []
+            self._entries = [e for e in self._entries if not e.matches(key_arrays, params)]
+            if not self._entries or self._total() + entry.nbytes(with_geometry=False) <= self.max_bytes:
+                self._entries.append(entry)
+            else:
+                entry.cache = None
+            self._newest = entry
         return entry
+
+    def room_for(self, nbytes: int) -> bool:
+        with self._lock:
+            return self._total() + nbytes <= self.max_bytes
 
     def clear(self) -> None:
         with self._lock:
-            self._entry = None
+            self._entries = []
+            self._newest = None
 
 
 @njit(parallel=True, **JIT)
