@@ -107,8 +107,8 @@ def test_dc_only_keeps_higher_orders_frozen(tiny, vgg):
     assert not torch.equal(s.gaussians.sh0, sh00)
 
 
-def test_views_follow_the_trajectory_with_iters_per_view(tiny, vgg):
-    s = make(tiny, vgg, iters_per_view=2, view_order="dataset", virtual_views=1)
+def test_block_schedule_stays_on_a_view_for_iters_per_view(tiny, vgg):
+    s = make(tiny, vgg, iters_per_view=2, view_order="dataset", virtual_views=1, schedule="block")
     assert len(s.trajectory) == 4 + 3
     assert s.total_iters == 2 * 7
     positions = [s.step()["trajectory_position"] for _ in range(6)]
@@ -121,6 +121,45 @@ def test_views_follow_the_trajectory_with_iters_per_view(tiny, vgg):
         expected = s.features(s.render(s.trajectory[3].camera, sh=s._initial_sh)[0].clamp(0, 1))
         current = s.features(s.render(s.trajectory[3].camera)[0].clamp(0, 1))
     assert torch.allclose(content, expected) and not torch.allclose(content, current)
+
+
+def test_interleaved_schedule_takes_a_new_view_every_step(tiny, vgg):
+    """The default schedule (paper, Cross-view Matching Guidance: the guide comes from "the viewpoint of previous
+    iteration"): step t renders trajectory position t mod N, so the view changes at every step, and every view of
+    the trajectory (virtual ones included) gets its ``iters_per_view`` iterations, one a pass."""
+    s = make(tiny, vgg, iters_per_view=3, view_order="dataset", virtual_views=1)
+    assert s.config.schedule == "interleaved"
+    n = len(s.trajectory)
+    assert n == 7 and s.total_iters == 3 * n and s.pass_progress() == (1, 3)
+    results = [s.step() for _ in range(s.total_iters)]
+    positions = [r["trajectory_position"] for r in results]
+    assert positions == [t % n for t in range(3 * n)]
+    assert all(a != b for a, b in zip(positions, positions[1:]))  # a new view at every step
+    assert np.bincount(positions).tolist() == [3] * n
+    assert [r["pass"] for r in results] == [t // n + 1 for t in range(3 * n)] and s.done
+    # every view's content features are kept: the second pass computes none again
+    assert sorted(s._content_cache) == list(range(n))
+
+
+def guided_by_the_previous_view(results: list[dict]) -> bool:
+    """Each step's guide map was built by the step before, from the view that step rendered, another view."""
+    return all(r["guide_view"] == prev["trajectory_position"] != r["trajectory_position"]
+               for prev, r in zip(results, results[1:]))
+
+
+def test_guide_map_comes_from_the_previous_steps_view(tiny, vgg):
+    results = {}
+    for schedule in ("interleaved", "block"):
+        s = make(tiny, vgg, iters_per_view=3, view_order="dataset", color_transfer=False, schedule=schedule)
+        results[schedule] = [s.step() for _ in range(8)]
+        assert results[schedule][0]["guide_view"] is None  # nothing to be guided by at the first step
+    assert guided_by_the_previous_view(results["interleaved"])
+    # the block schedule guides a view by itself in all but the first step of each block
+    assert not guided_by_the_previous_view(results["block"])
+    assert [r["guide_view"] == r["trajectory_position"] for r in results["block"][1:]].count(True) == 5
+    # without guidance no step is guided by anything
+    s = make(tiny, vgg, iters_per_view=3, color_transfer=False, lambda_guide=0.0)
+    assert all(s.step()["guide_view"] is None for _ in range(3))
 
 
 def test_config_changes_take_effect_on_the_next_step(tiny, vgg):

@@ -120,7 +120,7 @@ def test_geometry_gradients_reach_the_leaves_after_colour_only_renders(tiny, vgg
 
     s = make(tiny, vgg, params="all", color_transfer=False, iters_per_view=3)
     s._sync()  # the optimiser's leaves
-    colour = make(tiny, vgg, color_transfer=False, iters_per_view=4)
+    colour = make(tiny, vgg, color_transfer=False, iters_per_view=4, schedule="block")
     for _ in range(3):  # on the same first view: projection reused, then the pair weights recorded and replayed
         colour.step()
     cam = s.cameras[s.current_view.source_index]
@@ -138,7 +138,7 @@ def test_geometry_gradients_reach_the_leaves_after_colour_only_renders(tiny, vgg
     if cpu:
         from training.raster.cpu import FROZEN
 
-        entry = FROZEN._entry
+        entry = FROZEN.newest
         assert entry is not None and entry.fwd is not None  # the colour run's geometry and view are cached
         assert entry.params[:2] == (cam.width, cam.height)
         assert all(np.array_equal(a, b.detach().numpy()) for a, b in zip(
@@ -203,7 +203,7 @@ def test_keep_mid_run_under_all(tiny, vgg):
         assert leaf.requires_grad and leaf.grad.abs().sum() > 0, name
         assert not torch.equal(leaf.detach(), getattr(before, name)[kept]), name
     # the virtual view's content: the input model (geometry and colours) rendered, not the current model
-    s._position, s._content_cache = 1, None
+    s._position = 1  # its content is kept from its step, or computed now: the same features either way
     content = s.content_features()
     with torch.no_grad():
         expected = s.features(s.render(s.trajectory[1].camera, sh=s._initial_sh, input_geometry=True)[0].clamp(0, 1))

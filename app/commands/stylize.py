@@ -50,10 +50,14 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--lr", type=float, default=None,
                    help=f"Adam learning rate of the DC colour (default {D.LR})")
     p.add_argument("--iters-per-view", type=int, default=None,
-                   help="iterations per view (default: the paper's schedule for the scene kind)")
+                   help="iterations per view, in all (default: the paper's schedule for the scene kind)")
     p.add_argument("--min-total-iters", type=int, default=None, help="at least this many iterations in all")
     p.add_argument("--view-order", choices=D.VIEW_ORDERS, default="nearest",
                    help="order of the views (default: nearest, a short path by position and direction)")
+    p.add_argument("--schedule", choices=D.SCHEDULES, default="interleaved",
+                   help="interleaved (default, the paper's): a new view of the order at every iteration, so the "
+                        "guide map comes from the previous iteration's view, in passes along the order; block: "
+                        "--iters-per-view iterations on a view, then the next")
     p.add_argument("--seed", type=int, default=0, help="seed of the random view order")
     p.add_argument("--virtual-views", type=int, default=0, metavar="N",
                    help="insert N interpolated cameras between consecutive views (default 0)")
@@ -97,7 +101,7 @@ def config_from_args(args: argparse.Namespace):
         loss=args.loss, tau=args.tau, k=args.k, epsilon=args.epsilon, lambda_guide=args.lambda_guide,
         sinkhorn_iters=args.sinkhorn_iters, lambda_style=args.lambda_style, lambda_content=args.lambda_content,
         lr=args.lr, iters_per_view=args.iters_per_view, min_total_iters=args.min_total_iters,
-        scene_kind=args.scene_kind, view_order=args.view_order, seed=args.seed, virtual_views=args.virtual_views,
+        scene_kind=args.scene_kind, view_order=args.view_order, schedule=args.schedule, seed=args.seed, virtual_views=args.virtual_views,
         dc_only=args.dc_only, params=args.params, preset=args.preset or default_preset(args.device, args.backend),
         max_side=args.max_side,
         color_transfer=not args.no_color_transfer, backend=args.backend, device=args.device)

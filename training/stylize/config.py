@@ -9,8 +9,8 @@ from training.scene.scene import Camera
 from training.stylize import defaults as D
 from training.stylize.defaults import (FORWARD_ITERS_PER_VIEW, FORWARD_MIN_TOTAL, LOSSES, ORBIT_ITERS_PER_VIEW,
                                        ORBIT_ITERS_PER_VIEW_MANY, ORBIT_MANY_VIEWS, PAPER_MAX_SIDE, PARAMS, PRESETS,
-                                       QUICK_ITER_FRACTION, QUICK_MAX_SIDE, SCENE_KINDS, STANDARD_MAX_SIDE,
-                                       VIEW_ORDERS)
+                                       QUICK_ITER_FRACTION, QUICK_MAX_SIDE, SCENE_KINDS, SCHEDULES,
+                                       STANDARD_MAX_SIDE, VIEW_ORDERS)
 
 DEFAULT_LAMBDA_STYLE = D.LAMBDA_STYLE
 DEFAULT_LR = D.LR
@@ -41,6 +41,7 @@ class StylizeConfig:
     min_total_iters: int | None = None
     scene_kind: str = "auto"  # auto | forward | 360
     view_order: str = "nearest"  # dataset | nearest | random
+    schedule: str = "interleaved"  # interleaved: a new view every iteration (the paper) | block: iters_per_view in a row
     seed: int = 0
     virtual_views: int = 0
     dc_only: bool = False  # keep shN at its initial values (frozen): the stylization is view-independent
@@ -59,6 +60,8 @@ class StylizeConfig:
             raise ValueError(f"unknown preset {self.preset!r}; expected one of {', '.join(PRESETS)}")
         if self.view_order not in VIEW_ORDERS:
             raise ValueError(f"unknown view order {self.view_order!r}; expected one of {', '.join(VIEW_ORDERS)}")
+        if self.schedule not in SCHEDULES:
+            raise ValueError(f"schedule must be one of {', '.join(SCHEDULES)}, got {self.schedule!r}")
         if self.scene_kind not in SCENE_KINDS:
             raise ValueError(f"unknown scene kind {self.scene_kind!r}; expected auto, forward or 360")
         if self.params not in PARAMS:  # worded "<field> ..." so the CLI can name the flag

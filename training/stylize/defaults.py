@@ -45,6 +45,14 @@ LR = 0.02
 SHN_LR_FACTOR = 1.0 / 20.0  # 3DGS: the higher SH orders learn 20x slower than the DC term
 
 VIEW_ORDERS = ("dataset", "nearest", "random")
+# When the view changes. "interleaved" (the default): a new view of the trajectory at every iteration, so the guide
+# map of iteration t comes from the view of iteration t - 1 (paper, Cross-view Matching Guidance: "the guidance map
+# for viewpoint v is the weighted projection of the rendered features from viewpoint v-1 (i.e., the viewpoint of
+# previous iteration)"); the iterations per view (supplementary: "50 iterations per view with a minimum constraint
+# of 2,000 total iterations") set the total, spread over passes along the trajectory, as ARF's loop draws a new view
+# at every step. "block": each view for ``iters_per_view`` consecutive iterations, then the next (this project's
+# schedule before issue 28: the guide then comes from the same view in all but one iteration of each block).
+SCHEDULES = ("interleaved", "block")
 SCENE_KINDS = ("auto", "forward", "360")
 
 # What the stylization optimises. "colour": the SH colours only, geometry fixed (the paper, Method: "we fix the

@@ -66,8 +66,10 @@ def stylize_to_folder(model: Path, data: Path, style: Path, out: Path, config: S
     if listener is not None:
         stylizer.add_listener(listener)
     if log is not None:
+        passes = stylizer.pass_progress()[1]
         log(f"stylize: {len(scene.cameras)} views ({stylizer.kind}), {len(stylizer.trajectory)} in the "
-              f"trajectory, {stylizer.total_iters} iterations at "
+              f"trajectory, {stylizer.total_iters} iterations ({config.schedule}: {passes} "
+              f"pass{'es' if passes != 1 else ''} along the trajectory) at "
               f"{stylizer.cameras[0].width}x{stylizer.cameras[0].height}; VGG weights: "
               f"{getattr(stylizer.vgg, 'weights_source', 'given')}")
     t0 = time.perf_counter()
@@ -120,6 +122,8 @@ def stylize_to_folder(model: Path, data: Path, style: Path, out: Path, config: S
         "view_order": [scene.cameras[i].name for i in stylizer.order],
         "iterations": stylizer.iteration,
         "iters_per_view": stylizer.iters_per_view,
+        "schedule": stylizer.config.schedule,
+        "passes": stylizer.pass_progress()[1],
         "render_size": [stylizer.cameras[0].width, stylizer.cameras[0].height],
         "num_gaussians": len(stylizer.gaussians),
         "sh_degree": stylizer.gaussians.sh_degree,

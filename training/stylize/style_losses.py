@@ -1,8 +1,11 @@
 """Style losses behind one interface: CCFT (ours), NNFM (ARF's nearest-neighbour feature matching), Gram (Gatys).
 
-``loss, stats = style_loss(render_feats, style_feats)`` with render_feats (1, C, h, w) and style_feats
-(1, C, h2, w2). Parameters are plain attributes that may change between calls (the viewer edits them live).
-CCFT keeps its guide map from one call to the next (the previous view's); ``reset_guide()`` forgets it.
+``loss, stats = style_loss(render_feats, style_feats, source=view)`` with render_feats (1, C, h, w) and style_feats
+(1, C, h2, w2); ``source`` names the view the render came from. Parameters are plain attributes that may change
+between calls (the viewer edits them live). CCFT keeps its guide map from one call to the next (built from the
+previous call's render) and says whose it was: ``guide_source`` (the ``source`` of the call that built the map it
+holds) and ``used_guide_source`` (of the map the last call was guided by; None when that call had no guidance);
+``reset_guide()`` forgets it.
 """
 
 from __future__ import annotations
@@ -37,12 +40,15 @@ class CCFTStyleLoss:
         self.iters = iters
         self.chunk_elements = chunk_elements
         self.guide: torch.Tensor | None = None  # (m, C) from the previous call
+        self.guide_source = None  # the ``source`` of the call that built ``guide``
+        self.used_guide_source = None  # the source of the guide the last call used (None: unguided)
         self.last_result = None  # the last CCFTResult (plan, column mass) for reports
 
     def reset_guide(self) -> None:
-        self.guide = None
+        self.guide = self.guide_source = None
 
-    def __call__(self, render_feats: torch.Tensor, style_feats: torch.Tensor) -> tuple[torch.Tensor, dict]:
+    def __call__(self, render_feats: torch.Tensor, style_feats: torch.Tensor,
+                 source=None) -> tuple[torch.Tensor, dict]:
         X = _flatten(render_feats, "render")
         Y = _flatten(style_feats, "style").detach()
         guide = self.guide
@@ -50,7 +56,8 @@ class CCFTStyleLoss:
             guide = None  # the style features changed size (another resolution): the old guide does not apply
         result = ccft_loss(X, Y, guide, k=self.k, epsilon=self.epsilon, tau=self.tau,
                            lambda_guide=self.lambda_guide, iters=self.iters, chunk_elements=self.chunk_elements)
-        self.guide = result.guide
+        self.used_guide_source = self.guide_source if guide is not None and self.lambda_guide > 0 else None
+        self.guide, self.guide_source = result.guide, source
         self.last_result = result
         stats = {
             "loss": float(result.loss.detach()),
@@ -92,7 +99,8 @@ class NNFMStyleLoss:
     def reset_guide(self) -> None:  # no state; present so callers can treat every loss alike
         pass
 
-    def __call__(self, render_feats: torch.Tensor, style_feats: torch.Tensor) -> tuple[torch.Tensor, dict]:
+    def __call__(self, render_feats: torch.Tensor, style_feats: torch.Tensor,
+                 source=None) -> tuple[torch.Tensor, dict]:
         Xn = l2_normalise(_flatten(render_feats, "render"))
         Yn = l2_normalise(_flatten(style_feats, "style").detach())
         nn_idx = nearest_style_indices(Xn.detach(), Yn, self.chunk_elements)
@@ -127,7 +135,8 @@ class GramStyleLoss:
     def reset_guide(self) -> None:
         pass
 
-    def __call__(self, render_feats: torch.Tensor, style_feats: torch.Tensor) -> tuple[torch.Tensor, dict]:
+    def __call__(self, render_feats: torch.Tensor, style_feats: torch.Tensor,
+                 source=None) -> tuple[torch.Tensor, dict]:
         G_r = gram_matrix(_flatten(render_feats, "render"))
         G_s = gram_matrix(_flatten(style_feats, "style").detach())
         loss = ((G_r - G_s) ** 2).mean()

@@ -1,7 +1,6 @@
 """Scene stylization after a painting: the paper's capacity-controlled stylization, one iteration per ``step()``.
 
-Per iteration, on the current view of the trajectory (views in order, ``iters_per_view`` iterations each):
-render the Gaussians; VGG-16 relu3 features of the render and of the content image (the photo after the pre colour
+Per iteration, on the current view of the trajectory: render the Gaussians; VGG-16 relu3 features of the render and of the content image (the photo after the pre colour
 transfer, or the pre-stylization render for a virtual view), both halved first as ARF does; the style loss (CCFT with
 the guide map carried from iteration to iteration, or the NNFM / Gram baselines) against the style image's features
 (resized so that its long side matches the render's, then halved); content loss = MSE of the features; Adam on the
@@ -13,6 +12,13 @@ images and the Gaussians' colours get the linear colour transfer toward the pain
 view, refits the transfer from those renders to the painting and applies it to the Gaussians (ARF's pre and post
 colour transfer).
 
+Which view an iteration renders (``config.schedule``): "interleaved", the default and the paper's, takes the next view
+of the trajectory at every iteration (iteration t renders trajectory position t mod N), so the guide map each
+iteration uses was built by the previous iteration on the previous view (paper, Cross-view Matching Guidance:
+"the viewpoint of previous iteration"); the total, ``max(iters_per_view * N, min_total)``, is spread over passes along
+the trajectory. "block" stays on a view for ``iters_per_view`` iterations in a row before moving on. The content
+features of every view are kept (up to ``CONTENT_CACHE_BYTES``), so a new view every step costs no extra VGG pass.
+
 The config may change between steps (the viewer's sliders): ``update_config(**changes)`` from any thread is
 validated at once and applied at the start of the next step; loss parameters, weights, learning rate, iterations per
 view and even the loss itself may change, while the settings that shape the run (``FIXED_AT_START``) are refused.
@@ -23,7 +29,9 @@ trainer's events (training/core/messages.py).
 
 from __future__ import annotations
 
+import math
 import time
+from collections import OrderedDict
 from dataclasses import asdict, dataclass, field, replace
 from pathlib import Path
 from typing import Any
@@ -53,8 +61,12 @@ from training.stylize.virtual_views import ViewItem, trajectory
 # Settings that shape the run when the Stylizer is built (the cameras, the trajectory, the colour transfer, the
 # device, which parameters the optimiser holds): update_config refuses them rather than ignore them.
 FIXED_AT_START = ("view_order", "virtual_views", "preset", "device", "color_transfer", "background", "scene_kind",
-                  "max_side", "seed", "params")
+                  "max_side", "seed", "params", "schedule")
 GEOMETRY = ("means", "log_scales", "quats", "opacity_logits")
+# The content features of the views, kept so that a new view at every iteration costs no VGG pass of its photo:
+# about 2.4 MB a view at 256 px, 40-60 MB at 1600 px. Beyond this the least recently used view is dropped and
+# computed again when its turn comes.
+CONTENT_CACHE_BYTES = 1 << 30
 
 
 @dataclass
@@ -163,7 +175,7 @@ class Stylizer(LiveTrainer):
         self._position = 0  # index into the trajectory
         self._iters_on_view = 0
         self._style_cache: dict[int, torch.Tensor] = {}
-        self._content_cache: tuple[int, torch.Tensor] | None = None
+        self._content_cache: OrderedDict[int, torch.Tensor] = OrderedDict()  # trajectory position -> features
         self._loss_name: str | None = None
         self.style_loss = None
         self._optimizer: torch.optim.Optimizer | None = None
@@ -186,6 +198,20 @@ class Stylizer(LiveTrainer):
         """Iterations of the whole schedule: every trajectory view ``iters_per_view`` times, at least the minimum."""
         per_view, min_total = schedule(self.config, self.kind, len(self.scene.cameras))
         return max(per_view * len(self.trajectory), min_total)
+
+    @property
+    def iters_per_pass(self) -> int:
+        """Iterations of one pass along the trajectory: one a view (interleaved) or ``iters_per_view`` a view."""
+        per_view = 1 if self.config.schedule == "interleaved" else self.iters_per_view
+        return per_view * len(self.trajectory)
+
+    def pass_progress(self) -> tuple[int, int]:
+        """(pass, passes): the pass along the trajectory the next step belongs to (1-based, at most ``passes``) and
+        how many the schedule makes (the last one may stop part-way: the total need not be a whole number of
+        passes)."""
+        per_pass = self.iters_per_pass
+        passes = max(1, math.ceil(self.total_iters / per_pass))
+        return min(self.iteration // per_pass + 1, passes), passes
 
     @property
     def done(self) -> bool:
@@ -280,9 +306,11 @@ class Stylizer(LiveTrainer):
         return self._style_cache[side]
 
     def content_features(self) -> torch.Tensor:
-        """(1, 768, h, w) content features of the current view (cached while the view lasts)."""
-        if self._content_cache is not None and self._content_cache[0] == self._position:
-            return self._content_cache[1]
+        """(1, 768, h, w) content features of the current view (kept for every view, ``CONTENT_CACHE_BYTES``)."""
+        cache = self._content_cache
+        if self._position in cache:
+            cache.move_to_end(self._position)
+            return cache[self._position]
         view = self.current_view
         with torch.no_grad():
             if view.is_virtual:
@@ -291,7 +319,10 @@ class Stylizer(LiveTrainer):
             else:
                 content = torch.from_numpy(self.content_images[view.source_index]).to(self.device)
             feats = self.features(content)
-        self._content_cache = (self._position, feats)
+        cache[self._position] = feats
+        size = feats.numel() * feats.element_size()
+        while len(cache) > 1 and len(cache) * size > CONTENT_CACHE_BYTES:
+            cache.popitem(last=False)
         return feats
 
     # ------------------------------------------------------------------ config sync
@@ -355,7 +386,7 @@ class Stylizer(LiveTrainer):
         timings["vgg_forward"] = time.perf_counter() - t
 
         t = time.perf_counter()
-        style_loss, stats = self.style_loss(feats, style)
+        style_loss, stats = self.style_loss(feats, style, source=self._position)
         last = getattr(self.style_loss, "last_result", None)
         if last is not None and getattr(last, "column_mass", None) is not None:
             # swapped in whole: a reader on another thread sees the previous map or this one
@@ -394,6 +425,9 @@ class Stylizer(LiveTrainer):
             "view_index": view.source_index,
             "trajectory_position": self._position,
             "virtual": view.is_virtual,
+            # the trajectory position whose features built the guide map this step used (None: no guidance)
+            "guide_view": getattr(self.style_loss, "used_guide_source", None),
+            "pass": self.pass_progress()[0],
             "coverage": float(alpha.detach().mean()),
             "timings": timings,
             # the settings this step used: a live change shows in the first step that applied it
@@ -408,7 +442,7 @@ class Stylizer(LiveTrainer):
         self.iteration += 1
         self._iters_on_view += 1
         self.events.emit("step", self.iteration, {**result, "total_iters": self.total_iters})
-        if self._iters_on_view >= self.iters_per_view:
+        if cfg.schedule == "interleaved" or self._iters_on_view >= self.iters_per_view:
             self._iters_on_view = 0
             self._position = (self._position + 1) % len(self.trajectory)
             self.events.emit("view", self.iteration, {"trajectory_position": self._position,
@@ -481,7 +515,7 @@ class Stylizer(LiveTrainer):
             self._frozen = self._frozen.subset(index)
             self._mask = None if self._mask is None else self._mask[keep_t]
             self._optimizer = None
-            self._content_cache = None  # a virtual view's content is a render of the model
+            self._content_cache.clear()  # a virtual view's content is a render of the model
             self._version += 1
             self._geometry_version += 1
             self._structure_changed()
