@@ -229,7 +229,7 @@ KEYS = ({f"consistency_{r}_{k}" for r in ("short", "long") for k in ("rmse", "lp
         | {f"{k}_ratio_{w}" for k in ("gram", "swd") for w in ("pre_ct", "original")}
         | {f"{k}_ratio_pre_ct_relu{i}" for k in ("gram", "swd") for i in range(1, 5)}
         | {f"path_{r}_{k}" for r in ("short", "long") for k in ("rmse", "lpips", "valid")} | {"path_frames"}
-        | {"structure_distance", "luminance_psnr"})
+        | {"structure_distance", "luminance_psnr", "match_agreement", "match_agreement_cells"})
 
 
 def test_ratio_to_the_start_is_not_ruled_by_a_layer_the_colour_transfer_already_matched():
@@ -328,6 +328,7 @@ def test_measure_stylizer_before_and_after_steps(vgg, lpips, taps, painting):
     assert after["swd_ratio_pre_ct"] != pytest.approx(1.0, abs=1e-6)
     assert after["consistency_short_pairs"] == 3 and after["consistency_short_rmse"] is not None
     assert after["path_frames"] == 60 and after["path_short_rmse"] is not None and after["path_long_lpips"] > 0
+    assert 0.0 <= after["match_agreement"] <= 1.0 and after["match_agreement_cells"] > 0
     assert measure_stylizer(s, lpips=lpips, taps=taps, style_views=2) == after  # input_gaussians() is g
 
     # geometry optimised too: the stylized renders and depths come from the moved model, the original ones from the

@@ -29,7 +29,11 @@ Keys of the dict (None where a metric does not apply):
   identical images);
 - ``path_short_rmse``, ``path_short_lpips``, ``path_short_valid``, ``path_long_*``, ``path_frames``: the stylization
   papers' protocol, frames 1 and 7 apart on a smooth camera path through the cameras (path_consistency.py); only
-  ``measure_stylizer`` has a model to render the path with (None from ``measure_images``).
+  ``measure_stylizer`` has a model to render the path with (None from ``measure_images``);
+- ``match_agreement``, ``match_agreement_cells``: the share of corresponding feature cells of neighbouring views
+  (along the same nearest path, the same pairs as ``consistency_short_*``) that the unguided CCFT plan assigns to
+  the same style feature, and how many cells were compared (match_agreement.py); only ``measure_stylizer`` has the
+  stylizer's features and plan settings (None from ``measure_images``).
 
 Cost, measured on this machine's 2 CPU cores (torch on 2 threads, OMP_WAIT_POLICY=PASSIVE as ``training`` sets it,
 other jobs running: load average about 3) for 20 views at 256 x 192 with the defaults: ``measure_images`` about
@@ -49,14 +53,16 @@ import torch
 
 from training.evaluate.consistency import consistency_metrics
 from training.evaluate.content_metrics import blurred_luminance_psnr, structure_distance
+from training.evaluate.match_agreement import match_agreement
 from training.evaluate.path_consistency import path_consistency
 from training.evaluate.style_metrics import mean_style_distances, painting_for, style_distances, taps_stats
 from training.evaluate.vgg_taps import LAYERS, VGGTaps
 
 # Bumped whenever a change alters a metric's value: reports carry it, and `splatstyler eval` measures again the
 # cells whose metrics came from another version (from their saved models, without stylizing again).
-METRICS_VERSION = 3  # 2: consistency pairs follow the cameras' nearest path, not the stylization's trajectory;
-# 3: the path protocol (path_*) added, and the style ratios are ratios of the mean over the layers (issue 22)
+METRICS_VERSION = 4  # 2: consistency pairs follow the cameras' nearest path, not the stylization's trajectory;
+# 3: the path protocol (path_*) added, and the style ratios are ratios of the mean over the layers (issue 22);
+# 4: match agreement (match_agreement*) added (issue 28)
 SHORT_GAP = 1
 LONG_GAP = 7
 STYLE_VIEWS = 8  # views the style and content metrics look at (evenly spaced over the cameras)
@@ -148,12 +154,13 @@ def measure_images(stylized: Sequence[np.ndarray], depths: Sequence[np.ndarray],
             out[f"{kind}_ratio_pre_ct_{layer}"] = styl[key] / pre[key] if pre[key] > 0 else None
     out["structure_distance"] = float(np.mean(structure))
     out["luminance_psnr"] = float(np.mean(psnr))
-    out.update({key: None for key in PATH_KEYS})
+    out.update({key: None for key in PATH_KEYS + MATCH_KEYS})
     return out
 
 
 PATH_KEYS = ("path_short_rmse", "path_short_lpips", "path_short_valid", "path_long_rmse", "path_long_lpips",
              "path_long_valid", "path_frames")
+MATCH_KEYS = ("match_agreement", "match_agreement_cells")
 
 
 def render_with_depth(gaussians, cameras, background=(0.0, 0.0, 0.0), backend: str = "auto", device="cpu",
@@ -253,6 +260,11 @@ def measure_stylizer(stylizer, lpips=None, taps: VGGTaps | None = None, original
                          [a for _, a in styl], orig, pre, cameras, order, stylizer.style_image,
                          lpips=lpips, taps=taps, long_gap=long_gap, style_views=style_views, max_pairs=max_pairs,
                          lpips_pairs=lpips_pairs)
+    out.update(match_agreement([img[..., :3] for img, _ in styl], [img[..., 3:] for img, _ in styl],
+                               [a for _, a in styl], cameras, order,
+                               lambda image: stylizer.features(image.to(stylizer.device)), stylizer.style_features,
+                               k=cfg.k, epsilon=cfg.epsilon, tau=cfg.tau, iters=cfg.sinkhorn_iters,
+                               max_pairs=max_pairs, cancel=cancel))
     if len(cameras) >= 2:
         out.update(path_consistency(lambda path: render_with_depth(g, path, *args, cancel=cancel), cameras, order,
                                     lpips, long_gap=long_gap, lpips_pairs=lpips_pairs))
