@@ -361,3 +361,18 @@ def test_bench_stylize_reports_iterations_per_second_and_stages(vgg):
     assert "sinkhorn_ms" not in rows[1]
     # The timed steps ran inside the call: the wall time measured around it bounds them.
     assert sum(2 * r["ms_per_it"] for r in rows) < wall_ms
+
+
+def test_each_step_measures_its_plans_agreement_with_the_previous_view(tiny, vgg):
+    """Under the interleaved schedule every step after the first compares its plan with the previous step's on the
+    cells both views see (virtual views make neighbours close enough to share cells); the block schedule can only
+    where the view changed. The mean is what the report records."""
+    s = make(tiny, vgg, iters_per_view=3, view_order="dataset", color_transfer=False, virtual_views=2)
+    values = [s.step()["match_agreement"] for _ in range(12)]
+    measured = [v for v in values if v is not None]
+    assert values[0] is None and len(measured) >= 8 and all(0.0 <= v <= 1.0 for v in measured)
+    assert s.step_agreement() == pytest.approx(np.mean(measured))
+    b = make(tiny, vgg, iters_per_view=3, view_order="dataset", color_transfer=False, virtual_views=2,
+             schedule="block")
+    results = [b.step() for _ in range(12)]
+    assert {i for i, r in enumerate(results) if r["match_agreement"] is not None} == {3, 6, 9}

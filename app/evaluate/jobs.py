@@ -168,6 +168,7 @@ def _cell(job: Job, out: Path, log_path: Path) -> dict[str, Any]:
         metrics.setdefault(key, value)
     metrics["stylize_seconds"] = (report.get("time_s") or {}).get("total")
     metrics["iterations"] = report.get("iterations")
+    metrics["step_match_agreement"] = report.get("step_match_agreement")
     for key in ("test_psnr", "test_ssim", "num_gaussians", "aniso_p95", "smax_p95"):
         metrics[f"recon_{key}"] = recon_report.get(key)
     if spec["method"] != "2d" and (folder / "point_cloud.ply").is_file():

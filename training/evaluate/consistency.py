@@ -32,8 +32,8 @@ import numpy as np
 import torch
 import torch.nn.functional as F
 
-DEPTH_TOLERANCE = 0.03  # relative: |z_projected - z_source| <= 3 % of z_projected
-MIN_ALPHA = 0.5  # pixels of the target and the source with less coverage than this are not compared
+from training.scene.correspondence import (DEPTH_TOLERANCE, MIN_ALPHA, sample_bilinear, seen_by_source,  # noqa: F401
+                                           warp_points)
 MIN_VALID_PIXELS = 16  # a pair with fewer valid pixels gives no RMSE/LPIPS (its valid fraction still counts)
 
 
@@ -73,42 +73,6 @@ def backward_warp(target_depth, target_camera, source_image, source_depth, sourc
     if target_alpha is not None:
         valid &= _hw(_t(target_alpha), 1)[..., 0] >= min_alpha
     return warped.float().numpy(), valid.numpy()
-
-
-def warp_points(xs: torch.Tensor, ys: torch.Tensor, zt: torch.Tensor, target_camera,
-                source_camera) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
-    """Target pixel coordinates (xs, ys) (pixel centres at +0.5) at camera depths ``zt`` -> their pixel coordinates
-    (u, v) in the source view and their depth z there; float64 tensors of the inputs' shape."""
-    Kt = torch.as_tensor(target_camera.K, dtype=torch.float64)
-    rays = torch.stack([(xs - Kt[0, 2]) / Kt[0, 0], (ys - Kt[1, 2]) / Kt[1, 1], torch.ones_like(xs)], dim=-1)
-    pc = rays * zt[..., None]
-    # target camera -> source camera in one rigid transform
-    T = torch.as_tensor(np.asarray(source_camera.world_to_camera) @ np.linalg.inv(target_camera.world_to_camera),
-                        dtype=torch.float64)
-    ps = pc @ T[:3, :3].T + T[:3, 3]
-    z = ps[..., 2]
-    Ks = torch.as_tensor(source_camera.K, dtype=torch.float64)
-    zsafe = torch.where(z > 1e-9, z, torch.ones_like(z))
-    return Ks[0, 0] * ps[..., 0] / zsafe + Ks[0, 2], Ks[1, 1] * ps[..., 1] / zsafe + Ks[1, 2], z
-
-
-def sample_bilinear(image: torch.Tensor, u: torch.Tensor, v: torch.Tensor) -> torch.Tensor:
-    """(H, W, C) float64 sampled bilinearly at pixel coordinates (u, v) (centres at +0.5; border-clamped) ->
-    (*u.shape, C)."""
-    Hs, Ws = image.shape[:2]
-    # pixel coordinates -> grid_sample's [-1, 1] with align_corners=False
-    grid = torch.stack([2 * u / Ws - 1, 2 * v / Hs - 1], dim=-1).reshape(1, -1, 1, 2)
-    out = F.grid_sample(image.permute(2, 0, 1)[None], grid, mode="bilinear", padding_mode="border",
-                        align_corners=False)[0, :, :, 0]
-    return out.t().reshape(*u.shape, image.shape[2])
-
-
-def seen_by_source(u, v, z, source_alpha, source_depth, width: int, height: int, min_alpha: float = MIN_ALPHA,
-                   depth_tolerance: float = DEPTH_TOLERANCE) -> torch.Tensor:
-    """Where a warped point is what the source view shows: in front of it, inside its image, on its covered
-    pixels, and at the depth it renders there (``source_alpha``/``source_depth`` sampled at (u, v))."""
-    inside = (z > 1e-9) & (u >= 0) & (u <= width) & (v >= 0) & (v <= height)
-    return inside & (source_alpha >= min_alpha) & ((z - source_depth).abs() <= depth_tolerance * z)
 
 
 def lpips_map(lpips, a: torch.Tensor, b: torch.Tensor) -> torch.Tensor:

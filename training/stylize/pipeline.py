@@ -138,6 +138,8 @@ def stylize_to_folder(model: Path, data: Path, style: Path, out: Path, config: S
             **{f"{k}_ratio_end_to_start": distance_end[k] / v if v > 0 else None for k, v in distance_start.items()},
         },
         "utilisation": utilisation,
+        # each step's plan against the previous step's, where it saw another view (Stylizer.step_agreement)
+        "step_match_agreement": stylizer.step_agreement(),
         "metrics": measured,
         "metrics_version": getattr(metrics, "version", None) if measured is not None else None,
         "color_transfer": {

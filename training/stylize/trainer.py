@@ -47,6 +47,7 @@ from training.core.live_trainer import LiveTrainer
 from training.core.messages import check_cancel
 from training.model.gaussians import Gaussians
 from training.raster.rasterize import resolve_device
+from training.scene.correspondence import MIN_CELLS, cell_correspondence, label_agreement
 from training.scene.scene import Camera, Scene, over_background
 from training.stylize.region import (as_mask, blend_content, coverage_from_render, covered_pixels, indicator_sh,
                                      keep_unselected, masked_step)
@@ -181,6 +182,8 @@ class Stylizer(LiveTrainer):
         self._optimizer: torch.optim.Optimizer | None = None
         self._dc_only: bool | None = None
         self.last_stats: dict[str, Any] = {}
+        self._previous_plan = None  # (position, camera, labels, depth, alpha) of the last step, for its agreement
+        self._agreements: list[float] = []
         self.history: list[dict[str, float]] = []
         self.finished = False
         # Threads: step() runs on one; snapshot() and update_config() may come from another. The lock covers every
@@ -250,10 +253,11 @@ class Stylizer(LiveTrainer):
             return g.means, g.quats, g.scales, g.opacities
         return g.means, g.quats, self._scales, self._opacities
 
-    def render(self, camera: Camera, sh: torch.Tensor | None = None,
-               input_geometry: bool = False) -> tuple[torch.Tensor, torch.Tensor]:
+    def render(self, camera: Camera, sh: torch.Tensor | None = None, input_geometry: bool = False,
+               render_mode: str = "RGB") -> tuple[torch.Tensor, torch.Tensor]:
         """Render at ``camera`` with the current colours (or ``sh`` (N, K, 3)) -> image (H, W, 3), alpha (H, W, 1).
-        ``input_geometry``: with the input model's geometry (differs from the current one only under "all")."""
+        ``input_geometry``: with the input model's geometry (differs from the current one only under "all");
+        ``render_mode`` "RGB+ED": the image's fourth channel is the expected depth."""
         from training.raster.rasterize import rasterize
 
         g = self.gaussians
@@ -265,7 +269,7 @@ class Stylizer(LiveTrainer):
             torch.as_tensor(camera.world_to_camera, dtype=dt, device=self.device),
             torch.as_tensor(camera.K, dtype=dt, device=self.device), camera.width, camera.height,
             sh_degree=g.sh_degree, background=torch.tensor(self.config.background, dtype=dt, device=self.device),
-            backend=self.config.backend)
+            render_mode=render_mode, backend=self.config.backend)
         return image, alpha
 
     def render_views(self, cameras: list[Camera] | None = None, cancel=None, sh: torch.Tensor | None = None,
@@ -374,7 +378,8 @@ class Stylizer(LiveTrainer):
         sync = (lambda: torch.cuda.synchronize()) if self.device.type == "cuda" else (lambda: None)
 
         t = time.perf_counter()
-        image, alpha = self.render(view.camera)
+        image, alpha = self.render(view.camera, render_mode="RGB+ED")  # the depth: for the step's match agreement
+        image, depth = image[..., :3], image[..., 3:].detach()
         sync()
         timings["rasterize"] = time.perf_counter() - t
 
@@ -395,6 +400,9 @@ class Stylizer(LiveTrainer):
         loss = cfg.style_weight * style_loss + cfg.lambda_content * content_loss
         sync()
         timings["loss"] = time.perf_counter() - t
+        t = time.perf_counter()
+        agreement = self._step_agreement(last, feats.shape[2:], view.camera, depth, alpha.detach())
+        timings["agreement"] = time.perf_counter() - t
         for key, value in stats.items():  # the loss's own breakdown: similarity_topk_s, sinkhorn_s, guide_s
             if key.endswith("_s"):
                 timings[key[:-2]] = float(value)
@@ -427,6 +435,9 @@ class Stylizer(LiveTrainer):
             "virtual": view.is_virtual,
             # the trajectory position whose features built the guide map this step used (None: no guidance)
             "guide_view": getattr(self.style_loss, "used_guide_source", None),
+            # share of the cells this view and the previous step's (another view) both see that the two steps'
+            # plans gave the same style feature (None: same view, no CCFT plan, or too few shared cells)
+            "match_agreement": agreement,
             "pass": self.pass_progress()[0],
             "coverage": float(alpha.detach().mean()),
             "timings": timings,
@@ -451,6 +462,34 @@ class Stylizer(LiveTrainer):
         if self.iteration == self.total_iters:
             self.events.emit("finished", self.iteration)
         return result
+
+    def _step_agreement(self, result, cells: tuple[int, int], camera: Camera, depth: torch.Tensor,
+                        alpha: torch.Tensor) -> float | None:
+        """Match agreement of this step's plan with the previous step's, where the previous step rendered another
+        view: the share of this view's feature cells that see what a cell of the previous view saw (depth warp,
+        training/scene/correspondence.py) and whose largest plan entry is the same style feature there. What
+        cross-view guidance acts on, measured as the run goes; ``step_agreement()`` averages it."""
+        if result is None or getattr(result, "plan", None) is None:
+            self._previous_plan = None
+            return None
+        plan = result.plan
+        labels = plan.indices.gather(1, plan.values.argmax(dim=1, keepdim=True))[:, 0].reshape(cells).cpu()
+        previous, self._previous_plan = self._previous_plan, (self._position, camera, labels, depth, alpha)
+        if previous is None or previous[0] == self._position:
+            return None
+        _, p_camera, p_labels, p_depth, p_alpha = previous
+        landing, valid = cell_correspondence(depth, alpha, camera, cells, p_depth, p_alpha, p_camera,
+                                             tuple(p_labels.shape))
+        same, n = label_agreement(labels, p_labels, landing, valid)
+        if n < MIN_CELLS:
+            return None
+        self._agreements.append(same / n)
+        return same / n
+
+    def step_agreement(self) -> float | None:
+        """Mean over the steps so far of their match agreement with the step before (the steps that changed view
+        and had enough shared cells); None before any."""
+        return float(np.mean(self._agreements)) if self._agreements else None
 
     @property
     def mask(self) -> np.ndarray | None:
