@@ -54,8 +54,21 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                              "the pinned copy and CUDA-GL interop, and the display paths as the viewer times them")
     parser.add_argument("--live", action="store_true",
                         help="instead: training steps/s with the viewer window open (camera still, camera moving) "
-                             "against headless, and input-to-frame latency at 100k splats (app/bench/viewer_live.py)")
+                             "against headless, and input-to-frame latency (app/bench/viewer_live.py); the trainer "
+                             "on CUDA where gsplat is there")
     parser.add_argument("--seconds", type=float, default=20.0, help="--live: seconds measured per run (default 20)")
+    parser.add_argument("--data", default=None, metavar="DATA",
+                        help="--live: the scene to reconstruct (default: the demo's generated scene)")
+    parser.add_argument("--preset", default="quick", help="--live: the reconstruction preset (default quick)")
+    parser.add_argument("--style", default=None, metavar="IMAGE",
+                        help="--live: also stylize after this painting (from the headless run's reconstruction)")
+    parser.add_argument("--stylize-preset", default=None,
+                        help="--live: the stylization preset (default: paper where CUDA trains, else quick)")
+    parser.add_argument("--phases", default="headless,window_still,window_moving,latency",
+                        help="--live: comma-separated subset of headless, window_still, window_moving, latency")
+    parser.add_argument("--latency-splats", type=int, default=100_000,
+                        help="--live: Gaussians in the model the latency phase shows (default 100k)")
+    parser.add_argument("--latency-size", default="960x540", help="--live: the latency phase's window size")
 
 
 def _median_ms(fn, repeat: int) -> float:
@@ -126,7 +139,10 @@ def run(args: argparse.Namespace) -> list[dict]:
     if args.live:
         from app.bench.viewer_live import run_live
 
-        return run_live(args.seconds)
+        return run_live(args.seconds, data=args.data, style=args.style, preset=args.preset,
+                        stylize_preset=args.stylize_preset, latency_splats=args.latency_splats,
+                        latency_size=args.latency_size,
+                        phases=tuple(p.strip() for p in args.phases.split(",") if p.strip()))
     import numpy as np
 
     from app.bench.raster import bench_scene
