@@ -162,6 +162,22 @@ step() {  # step NAME TIMEOUT_S COMMAND...: run under timeout, output to WORK/NA
 }
 
 collect() {  # what comes back: at most 8 files, no deeper than two folders
+  # live.json: each live stage's rows, from its table or, for a run stopped by its time limit, from the rows it
+  # printed as each phase ended (without the ratios to headless, which come with the table)
+  "$PY" - "$WORK" <<'EOF' 2>/dev/null
+import json, sys
+from pathlib import Path
+work, rows = Path(sys.argv[1]), []
+for stage in ("reconstruct", "stylize"):
+    out, log = work / f"live_{stage}.out", work / f"live_{stage}.log"
+    done = [json.loads(l) for l in out.read_text().splitlines() if l.startswith("{")] if out.is_file() else []
+    if not done and log.is_file():
+        prefix = "bench viewer --live: "
+        done = [json.loads(l[len(prefix):]) for l in log.read_text().splitlines() if l.startswith(prefix)]
+    rows += done
+if rows:
+    (work / "live.json").write_text(json.dumps(rows, indent=1))
+EOF
   tar -czf "$OUT/results.tar.gz" -C "$WORK" . 2>/dev/null
   for f in bench_gpu/bench_gpu.md bench_gpu/bench_gpu.json live.json; do
     [ -f "$WORK/$f" ] && cp "$WORK/$f" "$OUT/"
@@ -256,8 +272,8 @@ bench() {  # the rasterizer and the CUDA display path's frame breakdown, into on
 window() {  # a GLFW window with GL for the live bench: the null platform (EGL), else a carried Xvfb (GLX)
   local probe='
 from app.viewer.platform import choose_platform, prepare_glfw
-import glfw, moderngl
 p = choose_platform(); prepare_glfw(p)
+import glfw, moderngl  # after prepare_glfw: the GLFW that imgui-bundle links, as the viewer uses
 assert glfw.init(), "GLFW could not start"
 glfw.window_hint(glfw.VISIBLE, False)
 w = glfw.create_window(64, 64, "probe", None, None)
@@ -291,20 +307,23 @@ print("window on", p, ":", ctx.info["GL_VENDOR"], "|", ctx.info["GL_RENDERER"])'
   timeout 60 "$PY" -c "$probe"
 }
 
-live() {
+live() {  # live STAGE: the reconstruction's phases, or the stylization's (after a headless reconstruction)
+  local stage="$1"
   [ -f "$WORK/window.env" ] && . "$WORK/window.env"
   local data="${LIVE_DATA:-.gpu_live/fox}" style=.gpu_live/style.jpg
   [ -f "$data/transforms.json" ] || { data=""; echo "no scene at ${LIVE_DATA:-.gpu_live/fox}: the demo's generated scene instead"; }
   [ -f "$style" ] || style="$SHARED/data/styles/starry_night.jpg"
   [ -f .gpu_live/vgg16_features16.pth ] && export SPLATSTYLER_VGG_WEIGHTS="$REPO/.gpu_live/vgg16_features16.pth"
-  local args=(--live --seconds "${LIVE_SECONDS:-15}" --preset "${LIVE_PRESET:-standard}" --style "$style"
-              --phases "${LIVE_PHASES:-headless,window_still,window_moving,latency}"
-              --latency-splats "${LIVE_LATENCY_SPLATS:-1000000}" --latency-size "${LIVE_LATENCY_SIZE:-1920x1080}")
+  local args=(--live --seconds "${LIVE_SECONDS:-15}" --preset "${LIVE_PRESET:-standard}")
+  if [ "$stage" = reconstruct ]; then
+    args+=(--phases "${LIVE_PHASES:-headless,window_still,window_moving,latency}"
+           --latency-splats "${LIVE_LATENCY_SPLATS:-1000000}" --latency-size "${LIVE_LATENCY_SIZE:-1920x1080}")
+  else  # the stylization's phases; a headless reconstruction runs first, for its model
+    args+=(--style "$style" --phases "${LIVE_STYLIZE_PHASES:-headless,window_moving}")
+    [ -n "${LIVE_STYLIZE_PRESET:-}" ] && args+=(--stylize-preset "$LIVE_STYLIZE_PRESET")
+  fi
   [ -n "$data" ] && args+=(--data "$data")
-  [ -n "${LIVE_STYLIZE_PRESET:-}" ] && args+=(--stylize-preset "$LIVE_STYLIZE_PRESET")
-  "$PY" -m app bench viewer "${args[@]}" --json | tee "$WORK/live.json.tmp"
-  grep '^{' "$WORK/live.json.tmp" | "$PY" -c 'import json, sys; json.dump([json.loads(l) for l in sys.stdin], sys.stdout, indent=1)' \
-    >"$WORK/live.json"
+  "$PY" -m app bench viewer "${args[@]}" --json >"$WORK/live_$stage.out"
 }
 
 run() {
@@ -333,7 +352,8 @@ run() {
         step install_live 120 install_live
         environment
         step window 150 window
-        step live 480 live ;;
+        step live_reconstruct 240 live reconstruct
+        step live_stylize 300 live stylize ;;
       *) die "unknown part: $part (base, display or live)" ;;
     esac
   done

@@ -76,6 +76,8 @@ def _run_phase(spec: dict) -> dict:
     if proc.returncode != 0 or not lines:
         raise RuntimeError(f"bench viewer --live ({spec['stage']} {spec['phase']}) failed: "
                            f"{proc.stderr.strip().splitlines()[-1:]}")
+    # each row as it comes (the table waits for the last): a run stopped by a time limit keeps what it measured
+    print(f"bench viewer --live: {lines[-1]}", file=sys.stderr, flush=True)
     return json.loads(lines[-1])
 
 
