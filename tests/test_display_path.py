@@ -240,11 +240,14 @@ def test_a_later_candidate_must_be_clearly_faster_to_be_chosen():
 
 
 # ---------------------------------------------------------------------------------------------- CUDA-GL interop
-def _interop_skip_reason(ctx) -> str | None:
+def _registration_refused(ctx) -> str | None:
+    """Why CUDA cannot register this GL context's textures here, or None where it can."""
+    import torch
+
     from app.viewer.display_path import interop_unavailable
 
-    if not _has_cuda():
-        return "needs a CUDA GPU and gsplat"
+    if not torch.cuda.is_available():
+        return "torch sees no CUDA device"
     why = interop_unavailable()
     if why:
         return why
@@ -252,6 +255,10 @@ def _interop_skip_reason(ctx) -> str | None:
     if "NVIDIA" not in vendor.upper():
         return f"the GL context is {vendor}'s, not NVIDIA's: CUDA cannot register its textures"
     return None
+
+
+def _interop_skip_reason(ctx) -> str | None:
+    return "needs a CUDA GPU and gsplat" if not _has_cuda() else _registration_refused(ctx)
 
 
 def test_cuda_interop_draws_what_the_pinned_copy_draws(ctx):
@@ -439,7 +446,7 @@ def test_a_gl_context_cuda_cannot_register_falls_back_to_the_pinned_copy(ctx):
     why = interop_unavailable()
     if why:
         pytest.skip(why)
-    if _interop_skip_reason(ctx) is None:
+    if _registration_refused(ctx) is None:
         pytest.skip("CUDA registers this GL context's textures here (the interop case above runs instead)")
     snap = snapshot()
     off = Offscreen(ctx, 64, 48)
