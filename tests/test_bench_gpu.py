@@ -45,7 +45,11 @@ def test_report_from_a_real_cpu_run_of_every_step(tmp_path):
     viewer = steps["viewer"]["rows"][0]
     assert viewer["n"] == 3000 and viewer["frame_f2_ms"] > 0
     # the chooser's pick: on a CUDA machine it may be the cuda path (it was, on an H100)
-    assert viewer["display_path"].startswith("gl-") or (torch.cuda.is_available() and viewer["display_path"] == "cuda")
+    assert viewer["display_path"].startswith("gl-") or (torch.cuda.is_available()
+                                                        and viewer["display_path"].startswith("cuda/"))
+    if not torch.cuda.is_available():
+        assert viewer["cuda_breakdown_skipped"] == "torch sees no CUDA device"
+        assert steps["display"]["rows"][0]["cuda_breakdown_skipped"] == "torch sees no CUDA device"
     rec = steps["reconstruct"]
     assert rec["status"] == "ok", rec
     assert rec["iterations"] == 40 and rec["minutes"] > 0 and rec["test_psnr"] > 5 and rec["peak_gpu_gib"] is None
@@ -64,3 +68,28 @@ def test_report_from_a_real_cpu_run_of_every_step(tmp_path):
     assert f"| reconstruct | ok | {gpu._fmt(rec['minutes'])} |" in md
     assert "8.35 min (RTX 4090)" in md and viewer["display_path"] in md
     assert [r["step"] for r in gpu.pipeline_rows(results)] == list(gpu.STEPS)
+
+
+def test_frame_breakdown_of_the_cuda_path_and_its_table():
+    """The CUDA display path's frame breakdown, run on CPU tensors (the torch backend: the same code), and the table
+    bench gpu writes of it; interop cannot run without CUDA, and the table says why."""
+    from app.bench.cuda_frame import STAGES, frame_breakdown
+    from app.viewer.camera_control import ViewerCamera
+    from renderer_gl import create_context
+    from tests.test_display_path import snapshot
+
+    ctx = create_context("egl")
+    cam = ViewerCamera.looking_at((0.4, -0.3, -4.0), (0.0, 0.0, 0.0), up=(0.0, -1.0, 0.0), fov_y_degrees=40.0)
+    bd = frame_breakdown(ctx, snapshot(n=2000), cam.camera(64, 48), repeat=2, backend="torch")
+    ctx.release()
+    assert bd["cuda_pinned_frame_ms"] > 0 and all(bd[f"cuda_pinned_{s}_ms"] > 0 for s in STAGES)
+    assert bd["cuda_pinned_stages_ms"] == pytest.approx(sum(bd[f"cuda_pinned_{s}_ms"] for s in STAGES))
+    assert "cuda_interop_frame_ms" not in bd and bd["cuda_interop_skipped"].startswith("InteropError: ")
+    row = {"n": 2000, "width": 64, "height": 48, **bd}
+    md = "\n".join(gpu.breakdown_markdown({"display": {"command": "splatstyler bench viewer --cuda-only",
+                                                         "rows": [row, {"n": 10, "cuda_breakdown_skipped": "why"}]}}))
+    assert "## Where a frame of the CUDA display path goes (ms)" in md
+    cells = [gpu._fmt(bd[f"cuda_pinned_{s}_ms"]) for s in STAGES]
+    assert f"| 2000 | 64x48 | pinned | {' | '.join(cells)} | {gpu._fmt(bd['cuda_pinned_stages_ms'])} |" in md
+    assert f"- 2000 splats, interop: not measured: {bd['cuda_interop_skipped']}" in md
+    assert "- 10 splats: not measured: why" in md

@@ -3,6 +3,9 @@ the GL renderer's picture for the same viewer camera; and the display-path choos
 
 from __future__ import annotations
 
+import ctypes
+import enum
+import sys
 from dataclasses import replace
 
 import numpy as np
@@ -10,8 +13,9 @@ import pytest
 
 from app.viewer.camera_control import ViewerCamera
 from app.viewer.display_cuda import CudaDisplay, unsupported
-from app.viewer.display_path import (Candidate, choose_display_path, cuda_candidate, default_candidates,
-                                     gl_candidate, pick)
+from app.viewer.display_interop import InteropError
+from app.viewer.display_path import (Candidate, DisplayChoice, choose_display_path, cuda_candidate,
+                                     default_candidates, gl_candidate, pick)
 from renderer_gl import Offscreen, SplatRenderer, create_context
 from tests.gl_scenes import psnr
 from training.core.messages import ModelSnapshot
@@ -193,7 +197,7 @@ def test_chooser_times_every_candidate_and_skips_one_that_raises(ctx):
     candidates = [gl_candidate(ctx, snap, "gl-cpu-sort", "f4"), cuda_candidate(ctx, snap, backend="torch"),
                   Candidate("gl-gpu-sort", "f2", broken), Candidate("gl-gpu-sort", "f4", fails_later)]
     choice = choose_display_path(ctx, snap, viewer_camera(), (64, 48), frames=2, candidates=candidates)
-    assert set(choice.frame_ms) == {"gl-cpu-sort/f4", "cuda"}
+    assert set(choice.frame_ms) == {"gl-cpu-sort/f4", "cuda/pinned"}
     assert choice.skipped["gl-gpu-sort/f2"] == "RuntimeError: driver said no"
     assert choice.skipped["gl-gpu-sort/f4"] == "MemoryError: out of device memory" and released == [True]
     fastest = min(choice.frame_ms, key=choice.frame_ms.get)
@@ -233,3 +237,254 @@ def test_a_later_candidate_must_be_clearly_faster_to_be_chosen():
     assert pick(cands, {"gl-cpu-sort/f4": 11.0, "gl-cpu-sort/f2": 10.0, "cuda": 10.4}).label == "gl-cpu-sort/f2"
     assert pick(cands, {"gl-cpu-sort/f4": 48.0, "gl-cpu-sort/f2": 12.0, "cuda": 3.0}).label == "cuda"
     assert pick(cands, {"gl-cpu-sort/f2": 12.0, "cuda": 3.0}).label == "cuda"  # f4 failed: not timed
+
+
+# ---------------------------------------------------------------------------------------------- CUDA-GL interop
+def _registration_refused(ctx) -> str | None:
+    """Why CUDA cannot register this GL context's textures here, or None where it can."""
+    import torch
+
+    from app.viewer.display_path import interop_unavailable
+
+    if not torch.cuda.is_available():
+        return "torch sees no CUDA device"
+    why = interop_unavailable()
+    if why:
+        return why
+    vendor = str(ctx.info.get("GL_VENDOR", ""))
+    if "NVIDIA" not in vendor.upper():
+        return f"the GL context is {vendor}'s, not NVIDIA's: CUDA cannot register its textures"
+    return None
+
+
+def _interop_skip_reason(ctx) -> str | None:
+    return "needs a CUDA GPU and gsplat" if not _has_cuda() else _registration_refused(ctx)
+
+
+def test_cuda_interop_draws_what_the_pinned_copy_draws(ctx):
+    """On an NVIDIA GPU with NVIDIA's GL and cuda-python: the picture written into the texture on the device is the
+    pinned copy's, byte for byte, at two sizes (the view's moving and still sizes), and nothing goes through host
+    memory."""
+    why = _interop_skip_reason(ctx)
+    if why:
+        pytest.skip(why)
+    snap = snapshot(n=2000)
+    cam = viewer_camera()
+    pinned = CudaDisplay(ctx, backend="cuda", transfer="pinned")
+    interop = CudaDisplay(ctx, backend="cuda", transfer="interop", fallback=False)
+    off = Offscreen(ctx, 320, 240)
+    pictures = {}
+    for d in (pinned, interop):
+        d.set_model(snap)
+        for scale in (1.0, 0.5, 1.0):
+            d.draw(cam, off.fbo, background=BG, scale=scale)
+            pictures.setdefault(d.transfer, []).append(off.read())
+    assert interop.transfer == "interop" and interop.fallback_reason is None
+    assert interop._pinned is None  # no page-locked host buffer was ever needed
+    assert pictures["pinned"][0].std() > 10
+    for a, b in zip(pictures["pinned"], pictures["interop"]):
+        np.testing.assert_array_equal(a, b)
+    interop.profile = True
+    interop.draw(cam, off.fbo, background=BG)
+    assert set(interop.last_stages) == {"raster", "convert", "transfer", "draw"}
+    off.release()
+    pinned.release()
+    interop.release()
+
+
+class HostInteropRuntime:
+    """A stand-in for cuda-python's runtime on a machine without CUDA: the six graphics-interop calls with CUDA's
+    documented semantics, done on the host (a mapped texture's array takes rows from ``src`` at ``spitch`` bytes
+    apart, and GL sees them after the unmap), so that the display's calls and their arguments (pitch, sizes, order,
+    unmapping) draw a picture. ``fail_map_at``: the map call (1-based) that returns cudaErrorUnknown, as a driver
+    does mid-session."""
+
+    class cudaError_t(enum.IntEnum):
+        cudaSuccess = 0
+        cudaErrorUnknown = 999
+
+    class cudaGraphicsRegisterFlags(enum.IntEnum):
+        cudaGraphicsRegisterFlagsWriteDiscard = 2
+
+    class cudaMemcpyKind(enum.IntEnum):
+        cudaMemcpyDefault = 4
+
+    def __init__(self, ctx, fail_map_at: int | None = None):
+        self.ctx = ctx
+        self.fail_map_at = fail_map_at
+        self.registered: dict[int, int] = {}  # resource -> GL texture name
+        self.unregistered: list[int] = []
+        self.maps = 0
+        self.mapped: set[int] = set()
+        self.pending: dict[int, tuple] = {}
+
+    def cudaGetErrorName(self, err):
+        return self.cudaError_t.cudaSuccess, self.cudaError_t(err).name.encode()
+
+    def cudaGetErrorString(self, err):
+        return self.cudaError_t.cudaSuccess, b"unknown error"
+
+    def cudaSetDevice(self, device):
+        return (self.cudaError_t.cudaSuccess,)
+
+    def cudaGraphicsGLRegisterImage(self, glo, target, flags):
+        assert target == 0x0DE1 and flags == self.cudaGraphicsRegisterFlags.cudaGraphicsRegisterFlagsWriteDiscard
+        resource = 100 + len(self.registered) + len(self.unregistered)
+        self.registered[resource] = glo
+        return self.cudaError_t.cudaSuccess, resource
+
+    def cudaGraphicsMapResources(self, count, resource, stream):
+        self.maps += 1
+        if self.maps == self.fail_map_at:
+            return (self.cudaError_t.cudaErrorUnknown,)
+        assert count == 1 and resource in self.registered and resource not in self.mapped
+        self.mapped.add(resource)
+        return (self.cudaError_t.cudaSuccess,)
+
+    def cudaGraphicsSubResourceGetMappedArray(self, resource, index, level):
+        assert resource in self.mapped and (index, level) == (0, 0)
+        return self.cudaError_t.cudaSuccess, resource
+
+    def cudaMemcpy2DToArrayAsync(self, array, w_offset, h_offset, src, spitch, width, height, kind, stream):
+        assert array in self.mapped and (w_offset, h_offset) == (0, 0)
+        assert kind == self.cudaMemcpyKind.cudaMemcpyDefault
+        rows = b"".join(ctypes.string_at(src + r * spitch, width) for r in range(height))
+        self.pending[array] = (width // 4, height, rows)
+        return (self.cudaError_t.cudaSuccess,)
+
+    def cudaGraphicsUnmapResources(self, count, resource, stream):
+        self.mapped.discard(resource)
+        if resource in self.pending:
+            w, h, rows = self.pending.pop(resource)
+            self.ctx.external_texture(self.registered[resource], (w, h), 4, 0, "f1").write(rows)
+        return (self.cudaError_t.cudaSuccess,)
+
+    def cudaGraphicsUnregisterResource(self, resource):
+        self.unregistered.append(resource)
+        self.registered.pop(resource)
+        return (self.cudaError_t.cudaSuccess,)
+
+
+def test_interop_calls_draw_the_pinned_picture_and_a_mapping_error_mid_session_falls_back(ctx):
+    """The display's interop calls, run against CUDA's semantics on the host (HostInteropRuntime), put the pinned
+    copy's picture on screen; when the driver refuses a map on the third frame, that frame and the next ones are
+    drawn through the pinned copy, the registrations are dropped, and the display says why."""
+    snap = snapshot(seed=5)
+    cam = viewer_camera()
+    off = Offscreen(ctx, 96, 72)
+    pinned = CudaDisplay(ctx, backend="torch", transfer="pinned")
+    pinned.set_model(snap)
+    pinned.draw(cam, off.fbo, background=BG)
+    expected = off.read()
+    pinned.draw(cam, off.fbo, background=BG, scale=0.5)
+    expected_half = off.read()
+    pinned.release()
+
+    rt = HostInteropRuntime(ctx, fail_map_at=3)
+    d = CudaDisplay(ctx, backend="torch", transfer="interop", runtime=rt)
+    d.set_model(snap)
+    for scale, want in ((1.0, expected), (0.5, expected_half)):
+        off.fbo.clear(1.0, 0.0, 1.0, 1.0)
+        d.draw(cam, off.fbo, background=BG, scale=scale)
+        np.testing.assert_array_equal(off.read(), want)
+    assert d.transfer == "interop" and len(rt.registered) == 2 and rt.maps == 2
+    off.fbo.clear(1.0, 0.0, 1.0, 1.0)
+    d.draw(cam, off.fbo, background=BG)  # the map fails: this frame goes through the pinned copy
+    np.testing.assert_array_equal(off.read(), expected)
+    assert d.transfer == "pinned" and rt.registered == {} and sorted(rt.unregistered) == [100, 101]
+    assert d.fallback_reason == "cudaGraphicsMapResources: cudaErrorUnknown (unknown error)"
+    d.draw(cam, off.fbo, background=BG, scale=0.5)
+    np.testing.assert_array_equal(off.read(), expected_half)
+    assert rt.maps == 3  # interop is not tried again
+    choice = DisplayChoice("cuda", None, transfer="interop")
+    assert choice.interop_note(d) == "CUDA-GL interop off: " + d.fallback_reason
+    d.release()
+
+    # without fallback (the chooser's candidates) the same error is the candidate's failure, not a pinned frame
+    strict = CudaDisplay(ctx, backend="torch", transfer="interop", fallback=False,
+                         runtime=HostInteropRuntime(ctx, fail_map_at=1))
+    with pytest.raises(InteropError, match="cudaGraphicsMapResources"):
+        strict.draw(cam, off.fbo, background=BG)
+    strict.release()
+    off.release()
+
+
+def test_without_cuda_python_the_display_copies_through_the_host_and_says_why(ctx, monkeypatch):
+    """cuda-python absent (as the test's interpreter sees it): the interop transfer falls back at once, the
+    chooser skips the interop candidate with the reason, and the Scene panel's note says it."""
+    for name in ("cuda", "cuda.bindings", "cuda.bindings.runtime"):
+        monkeypatch.setitem(sys.modules, name, None)  # import fails, as where the package is not installed
+    from app.viewer.display_path import interop_unavailable
+
+    why = interop_unavailable()
+    assert why.startswith("cuda-python is not installed")
+    snap = snapshot()
+    d = CudaDisplay(ctx, backend="torch", transfer="interop")
+    assert d.transfer == "pinned" and d.fallback_reason == why
+    d.set_model(snap)
+    off = Offscreen(ctx, 64, 48)
+    d.draw(viewer_camera(), off.fbo, background=BG)
+    assert off.read().std() > 10
+    d.release()
+    with pytest.raises(InteropError, match="cuda-python"):
+        CudaDisplay(ctx, backend="torch", transfer="interop", fallback=False)
+    cands = [cuda_candidate(ctx, snap, backend="torch", transfer="pinned"),
+             cuda_candidate(ctx, snap, backend="torch", transfer="interop")]
+    choice = choose_display_path(ctx, snap, viewer_camera(), (64, 48), frames=1, candidates=cands)
+    assert choice.label() == "cuda/pinned" and choice.cuda_options() == {"transfer": "pinned"}
+    assert choice.skipped["cuda/interop"].startswith("InteropError: cuda-python is not installed")
+    assert choice.interop_note() == "CUDA-GL interop not used: " + choice.skipped["cuda/interop"]
+    off.release()
+
+
+def test_a_gl_context_cuda_cannot_register_falls_back_to_the_pinned_copy(ctx):
+    """cuda-python present and the registration refused by the driver: here, a machine without an NVIDIA driver
+    (CUDA's answer is cudaErrorInsufficientDriver or cudaErrorNoDevice); on a GPU with Mesa's GL beside it, the same
+    call refuses the Mesa texture."""
+    from app.viewer.display_path import interop_unavailable
+
+    why = interop_unavailable()
+    if why:
+        pytest.skip(why)
+    if _registration_refused(ctx) is None:
+        pytest.skip("CUDA registers this GL context's textures here (the interop case above runs instead)")
+    snap = snapshot()
+    off = Offscreen(ctx, 64, 48)
+    d = CudaDisplay(ctx, backend="torch", transfer="interop")
+    d.set_model(snap)
+    d.draw(viewer_camera(), off.fbo, background=BG)
+    assert d.transfer == "pinned" and d.fallback_reason.startswith("cudaGraphicsGLRegisterImage: cudaError"), \
+        d.fallback_reason
+    assert off.read().std() > 10
+    d.release()
+    cands = [cuda_candidate(ctx, snap, backend="torch", transfer="pinned"),
+             cuda_candidate(ctx, snap, backend="torch", transfer="interop")]
+    choice = choose_display_path(ctx, snap, viewer_camera(), (64, 48), frames=1, candidates=cands)
+    assert choice.label() == "cuda/pinned"
+    assert choice.skipped["cuda/interop"].startswith("InteropError: cudaGraphicsGLRegisterImage: cudaError")
+    off.release()
+
+
+def test_profiled_frames_time_each_stage(ctx):
+    d = CudaDisplay(ctx, backend="torch")
+    d.set_model(snapshot())
+    off = Offscreen(ctx, 64, 48)
+    d.draw(viewer_camera(), off.fbo, background=BG)
+    assert d.last_stages == {}  # not profiled: no waits added to the frame
+    d.profile = True
+    d.draw(viewer_camera(), off.fbo, background=BG)
+    assert set(d.last_stages) == {"raster", "convert", "transfer", "draw"}
+    assert all(s > 0 for s in d.last_stages.values()) and sum(d.last_stages.values()) <= d.last_frame_s
+    off.release()
+    d.release()
+
+
+def test_overrides_name_the_cuda_transfer(ctx):
+    snap = snapshot()
+    cands = [Candidate("gl-cpu-sort", "f4", None), Candidate("cuda", None, None, "pinned")]
+    for override, transfer in (("cuda", "interop"), ("cuda/pinned", "pinned"), ("cuda/interop", "interop")):
+        choice = choose_display_path(ctx, snap, viewer_camera(), (64, 48), override=override, candidates=cands)
+        assert (choice.path, choice.transfer, choice.cuda_options()) == ("cuda", transfer, {"transfer": transfer})
+    with pytest.raises(ValueError, match="display path"):
+        choose_display_path(ctx, snap, viewer_camera(), (64, 48), override="cuda/f2", candidates=cands)
+    assert DisplayChoice("gl-cpu-sort", "f4").interop_note() is None

@@ -2,10 +2,14 @@
 
 On a machine where torch sees a CUDA device (the Python packages already installed, gsplat among them), it runs:
 
-1. ``parity``: the cuda backend's parity tests against the reference rasterizer (tests/test_raster_cuda.py, pytest
-   in a subprocess, from a source checkout);
+1. ``parity``: the cuda backend's parity tests against the reference rasterizer (tests/test_raster_cuda.py) and the
+   CUDA display path's cases (the GL renderer's picture; CUDA-GL interop against the pinned copy) from
+   tests/test_display_path.py, pytest in a subprocess, from a source checkout; a skipped case's reason is kept;
 2. ``raster``: ``bench raster --backends cuda`` at 1920x1080 for each ``--ns`` (default 100k, 1M, 2M);
-3. ``viewer``: ``bench viewer`` at 1920x1080 up to the largest N (every accumulation format and display path);
+3. ``viewer``: ``bench viewer`` at 1920x1080 up to the largest N (every accumulation format and display path, and
+   where a frame of the CUDA display path goes: raster, convert, transfer, draw and the frame, with the pinned copy
+   and with CUDA-GL interop); ``display`` (not among the default steps): ``bench viewer --cuda-only``, the CUDA
+   part of ``viewer`` alone, for a short lease;
 4. ``reconstruct``: ``reconstruct --preset paper --backend cuda`` of ``--data`` (default: the demo's generated
    scene), with minutes, iterations/s, peak GPU memory (torch's allocator) and test PSNR;
 5. ``stylize``: ``stylize --preset paper --backend cuda --device cuda`` of that reconstruction with ``--style``
@@ -28,7 +32,11 @@ import time
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[2]
-STEPS = ("parity", "raster", "viewer", "reconstruct", "stylize")
+STEPS = ("parity", "raster", "viewer", "display", "reconstruct", "stylize")
+DEFAULT_STEPS = tuple(s for s in STEPS if s != "display")
+PARITY_TESTS = ("tests/test_raster_cuda.py",
+                "tests/test_display_path.py::test_cuda_path_draws_what_the_gl_renderer_draws[cuda]",
+                "tests/test_display_path.py::test_cuda_interop_draws_what_the_pinned_copy_draws")
 DEFAULT_NS = (100_000, 1_000_000, 2_000_000)
 PAPER_STYLIZE_MINUTES = 8.35  # the paper's stylization time on an RTX 4090
 JSON_NAME, MD_NAME = "bench_gpu.json", "bench_gpu.md"
@@ -42,7 +50,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--style", default=None, metavar="IMAGE", help="painting (default: the demo's)")
     parser.add_argument("--ns", default=None, help="comma-separated Gaussian counts (default 100k,1M,2M)")
     parser.add_argument("--size", default="1920x1080", help="image size of the raster and viewer benches")
-    parser.add_argument("--steps", default=",".join(STEPS), help=f"comma-separated subset of {','.join(STEPS)}")
+    parser.add_argument("--steps", default=",".join(DEFAULT_STEPS),
+                        help=f"comma-separated subset of {','.join(STEPS)} (default {','.join(DEFAULT_STEPS)}: the "
+                             "viewer step includes the display step's figures)")
     parser.add_argument("--repeat", type=int, default=5, help="timed runs per raster/viewer figure")
 
 
@@ -93,6 +103,12 @@ def machine() -> dict:
         except (OSError, subprocess.SubprocessError, IndexError):
             info["driver"] = None
     try:
+        from cuda import bindings
+
+        info["cuda_python"] = bindings.__version__
+    except Exception as exc:  # not installed: the display path then has no CUDA-GL interop
+        info["cuda_python"] = f"unavailable: {type(exc).__name__}: {exc}".splitlines()[0]
+    try:
         import gsplat
 
         info["gsplat"] = gsplat.__version__
@@ -106,6 +122,7 @@ def machine() -> dict:
 
         ctx = create_context("egl")
         info["gl"] = context_backend(ctx)
+        info["gl_vendor"] = str(ctx.info.get("GL_VENDOR", "?"))
         info["moderngl"] = moderngl.__version__
         ctx.release()
     except Exception as exc:  # no EGL: the viewer step will fail and say so too
@@ -125,20 +142,23 @@ def _step(name: str, fn) -> dict:
     return result
 
 
-def parity_step(test_file: str = "tests/test_raster_cuda.py") -> dict:
-    """pytest on ``test_file`` in a subprocess; the counts from its summary line."""
-    path = ROOT / test_file
-    if not path.is_file():
-        raise FileNotFoundError(f"{path} (bench gpu runs the parity tests from a source checkout)")
-    cmd = [sys.executable, "-m", "pytest", "-q", "-p", "no:cacheprovider", str(path)]
+def parity_step(tests: tuple[str, ...] = PARITY_TESTS) -> dict:
+    """pytest on ``tests`` (files or node ids) in a subprocess; the counts from its summary line and the reasons
+    of skipped tests."""
+    for test in tests:
+        path = ROOT / test.split("::")[0]
+        if not path.is_file():
+            raise FileNotFoundError(f"{path} (bench gpu runs the parity tests from a source checkout)")
+    cmd = [sys.executable, "-m", "pytest", "-q", "-rs", "-p", "no:cacheprovider", *tests]
     proc = subprocess.run(cmd, capture_output=True, text=True, cwd=ROOT, timeout=3600)
     summary = (proc.stdout.strip().splitlines() or [""])[-1]
     counts = {k: int(v) for v, k in re.findall(r"(\d+) (passed|failed|skipped|error|errors)", summary)}
     status = "ok" if proc.returncode == 0 and counts.get("passed", 0) > 0 and not counts.get("skipped") else (
         "skipped" if proc.returncode in (0, 5) and not counts.get("passed") else "failed")
-    return {"status": status, "command": f"python -m pytest -q {test_file}", "summary": summary,
+    skips = [line.split(" ", 2)[-1] for line in proc.stdout.splitlines() if line.startswith("SKIPPED ")]
+    return {"status": status, "command": "python -m pytest -q " + " ".join(tests), "summary": summary,
             "passed": counts.get("passed", 0), "failed": counts.get("failed", 0),
-            "skipped": counts.get("skipped", 0), "returncode": proc.returncode}
+            "skipped": counts.get("skipped", 0), "skip_reasons": skips, "returncode": proc.returncode}
 
 
 def _bench_rows(module_name: str, argv: list[str]) -> list[dict]:
@@ -161,6 +181,11 @@ def raster_step(ns: list[int], size: str, repeat: int, backend: str = "cuda") ->
 def viewer_step(ns: list[int], size: str, repeat: int) -> dict:
     argv = ["--n", ",".join(map(str, ns)), "--size", size, "--repeat", str(repeat), "--no-cpu",
             "--gpu-sort-max", str(max(ns))]
+    return {"command": "splatstyler bench viewer " + " ".join(argv), "rows": _bench_rows("app.bench.viewer", argv)}
+
+
+def display_step(ns: list[int], size: str, repeat: int) -> dict:
+    argv = ["--cuda-only", "--n", ",".join(map(str, ns)), "--size", size, "--repeat", str(repeat)]
     return {"command": "splatstyler bench viewer " + " ".join(argv), "rows": _bench_rows("app.bench.viewer", argv)}
 
 
@@ -233,6 +258,8 @@ def collect(out: Path, steps: list[str], ns: list[int], size: str, repeat: int, 
             results["steps"].append(_step(name, lambda: raster_step(ns, size, repeat, backend)))
         elif name == "viewer":
             results["steps"].append(_step(name, lambda: viewer_step(ns, size, repeat)))
+        elif name == "display":
+            results["steps"].append(_step(name, lambda: display_step(ns, size, repeat)))
         elif name == "reconstruct":
             results["steps"].append(_step(name, lambda: reconstruct_step(
                 data, out / "reconstruct", generated, backend, extra=recon_extra)))
@@ -275,7 +302,8 @@ def markdown(results: dict) -> str:
     lines = [f"# splatstyler bench gpu ({results['started']})", "",
              f"GPU: {m.get('gpu', 'none')} ({_fmt(m.get('gpu_memory_gib'), '.0f')} GiB), driver "
              f"{_fmt(m.get('driver'))}; torch {m['torch']} (CUDA {_fmt(m.get('torch_cuda'))}); gsplat "
-             f"{_fmt(m.get('gsplat'))}; GL: {_fmt(m.get('gl'))}; Python {m['python']}.",
+             f"{_fmt(m.get('gsplat'))}; cuda-python {_fmt(m.get('cuda_python'))}; GL: {_fmt(m.get('gl'))} "
+             f"({_fmt(m.get('gl_vendor'))}); Python {m['python']}.",
              f"Scene: {results['data']}; painting: {results['style']}.", ""]
     steps = {s["step"]: s for s in results["steps"]}
     failed = [s for s in results["steps"] if s["status"] == "failed"]
@@ -284,6 +312,8 @@ def markdown(results: dict) -> str:
     if "parity" in steps:
         p = steps["parity"]
         lines += ["## CUDA parity tests", "", f"`{p.get('command', '')}`: {p['status']}: {p.get('summary', '')}", ""]
+        lines += [f"- skipped: {reason}" for reason in p.get("skip_reasons", [])] + (
+            [""] if p.get("skip_reasons") else [])
     if steps.get("raster", {}).get("rows"):
         r = steps["raster"]
         lines += ["## Rasterizer (ms)", "", f"`{r['command']}`", ""]
@@ -302,6 +332,7 @@ def markdown(results: dict) -> str:
                           x.get("frame_f1_plain_ms"), x.get("frame_half_ms"), x.get("sort_upload_ms"),
                           x.get("gpu_sort_ms")] + [x.get(p) for p in paths] + [x.get("display_path")]
                          for x in rows]) + [""]
+    lines += breakdown_markdown(steps)
     pipeline = [steps[k] for k in ("reconstruct", "stylize") if k in steps]
     if pipeline:
         lines += ["## Pipeline", ""]
@@ -312,6 +343,35 @@ def markdown(results: dict) -> str:
                          for s in pipeline]) + [""]
         lines += [f"- {s['step']}: `{s['command']}`" for s in pipeline if s.get("command")] + [""]
     return "\n".join(lines)
+
+
+def breakdown_markdown(steps: dict) -> list[str]:
+    """The CUDA display path's frame breakdown (app/bench/cuda_frame.py) from the display step's rows, or the
+    viewer step's where there is no display step."""
+    from app.bench.cuda_frame import STAGES, TRANSFERS
+
+    source = next((steps[k] for k in ("display", "viewer") if steps.get(k, {}).get("rows")), None)
+    if source is None:
+        return []
+    rows = source["rows"]
+    lines = ["## Where a frame of the CUDA display path goes (ms)", "", f"`{source['command']}`", "",
+             "Stages: each timed with a wait after it (their sum exceeds the frame by what the waits cost). "
+             "Frame: as the viewer draws it, then glFinish.", ""]
+    table, notes = [], []
+    for x in rows:
+        if x.get("cuda_breakdown_skipped"):
+            notes.append(f"- {x['n']} splats: not measured: {x['cuda_breakdown_skipped']}")
+            continue
+        for t in TRANSFERS:
+            if f"cuda_{t}_frame_ms" in x:
+                frame = x[f"cuda_{t}_frame_ms"]
+                table.append([x["n"], f"{x['width']}x{x['height']}", t] + [x[f"cuda_{t}_{s}_ms"] for s in STAGES]
+                             + [x[f"cuda_{t}_stages_ms"], frame, 1000.0 / frame if frame > 0 else None])
+            if x.get(f"cuda_{t}_skipped"):
+                notes.append(f"- {x['n']} splats, {t}: not measured: {x[f'cuda_{t}_skipped']}")
+    if table:
+        lines += _table(["splats", "size", "transfer", *STAGES, "sum of stages", "frame", "fps"], table) + [""]
+    return lines + notes + ([""] if notes else [])
 
 
 def write_report(results: dict, out: Path) -> tuple[Path, Path]:

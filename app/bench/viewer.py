@@ -17,6 +17,10 @@ context (EGL unless ``--backend``), on ``app.bench.raster``'s scene (a fixed amo
 - ``path_<path>[/<format>]_ms``: a turning-camera frame (sort included) through each display path this machine can
   run (app/viewer/display_path.py: GL with the CPU sort, GL with the GPU sort, CUDA), timed by the viewer's own
   chooser; ``display_path``: the one it picks; ``paths_skipped``: why the others were not timed;
+- ``cuda_<transfer>_<stage>_ms``: where a frame of the CUDA display path goes (raster, convert, transfer, draw,
+  and the whole frame), for the pinned copy and for CUDA-GL interop (app/bench/cuda_frame.py), where torch sees a
+  CUDA device; elsewhere ``cuda_breakdown_skipped`` says why. ``--cuda-only`` measures this and the display
+  paths alone;
 - ``cpu_fwd_ms``: ``rasterize(backend="cpu")`` forward without gradients, same scene and size;
   ``cpu_over_gl``: cpu_fwd_ms / frame_ms.
 
@@ -45,10 +49,26 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--no-cpu", action="store_true", help="skip the CPU rasterizer comparison")
     parser.add_argument("--no-paths", action="store_true",
                         help="skip timing the viewer's display paths (turning-camera frames, as the viewer chooses)")
+    parser.add_argument("--cuda-only", action="store_true",
+                        help="only the CUDA display path: its frame breakdown (raster, convert, transfer, draw) for "
+                             "the pinned copy and CUDA-GL interop, and the display paths as the viewer times them")
     parser.add_argument("--live", action="store_true",
                         help="instead: training steps/s with the viewer window open (camera still, camera moving) "
-                             "against headless, and input-to-frame latency at 100k splats (app/bench/viewer_live.py)")
+                             "against headless, and input-to-frame latency (app/bench/viewer_live.py); the trainer "
+                             "on CUDA where gsplat is there")
     parser.add_argument("--seconds", type=float, default=20.0, help="--live: seconds measured per run (default 20)")
+    parser.add_argument("--data", default=None, metavar="DATA",
+                        help="--live: the scene to reconstruct (default: the demo's generated scene)")
+    parser.add_argument("--preset", default="quick", help="--live: the reconstruction preset (default quick)")
+    parser.add_argument("--style", default=None, metavar="IMAGE",
+                        help="--live: also stylize after this painting (from the headless run's reconstruction)")
+    parser.add_argument("--stylize-preset", default=None,
+                        help="--live: the stylization preset (default: paper where CUDA trains, else quick)")
+    parser.add_argument("--phases", default="headless,window_still,window_moving,latency",
+                        help="--live: comma-separated subset of headless, window_still, window_moving, latency")
+    parser.add_argument("--latency-splats", type=int, default=100_000,
+                        help="--live: Gaussians in the model the latency phase shows (default 100k)")
+    parser.add_argument("--latency-size", default="960x540", help="--live: the latency phase's window size")
 
 
 def _median_ms(fn, repeat: int) -> float:
@@ -73,26 +93,44 @@ def _interleaved_median_ms(fns: dict, repeat: int) -> dict[str, float]:
     return {k: 1000.0 * statistics.median(v) for k, v in times.items()}
 
 
-def _display_paths(ctx, scene, w: int, h: int, repeat: int) -> dict:
-    """Each display path's turning-camera frame (app/viewer/display_path.py: the viewer's own chooser and
-    timings), the one it picks, and why the others were not timed."""
+def _snapshot_and_camera(scene, w: int, h: int):
+    """The bench scene as a ModelSnapshot, and the bench camera (identity pose, f = 0.9 w) as a ViewerCamera
+    orbiting the middle of the scene's box."""
     import numpy as np
 
     from app.viewer.camera_control import ViewerCamera
-    from app.viewer.display_path import choose_display_path
     from training.core.messages import ModelSnapshot
 
     means, quats, scales, opac, sh = (t.numpy() for t in scene[:5])
     norm = quats / np.linalg.norm(quats, axis=1, keepdims=True)
     snap = ModelSnapshot(1, 1, 0, means, scales, norm, opac, sh, 3)
-    # the bench camera (identity pose, f = 0.9 w), orbiting the middle of the scene's box
     fov = float(np.degrees(2 * np.arctan(h / (2 * float(scene[6][1, 1])))))
-    cam = ViewerCamera(np.eye(3), np.zeros(3), 5.0, fov, up=np.array([0.0, -1.0, 0.0]))
+    return snap, ViewerCamera(np.eye(3), np.zeros(3), 5.0, fov, up=np.array([0.0, -1.0, 0.0]))
+
+
+def _display_paths(ctx, scene, w: int, h: int, repeat: int) -> dict:
+    """Each display path's turning-camera frame (app/viewer/display_path.py: the viewer's own chooser and
+    timings), the one it picks, and why the others were not timed."""
+    from app.viewer.display_path import choose_display_path
+
+    snap, cam = _snapshot_and_camera(scene, w, h)
     choice = choose_display_path(ctx, snap, cam, (w, h), override="auto", frames=max(1, repeat), always_time=True)
     out = {f"path_{label}_ms": ms for label, ms in choice.frame_ms.items()}
     out["display_path"] = choice.label()
     out["paths_skipped"] = "; ".join(f"{k}: {v}" for k, v in choice.skipped.items())
     return out
+
+
+def _cuda_breakdown(ctx, scene, w: int, h: int, repeat: int) -> dict:
+    """Where a frame of the CUDA display path goes (app/bench/cuda_frame.py), or why it cannot be measured here."""
+    from app.bench.cuda_frame import frame_breakdown
+    from app.viewer.display_path import unavailable
+
+    why = unavailable("cuda", ctx)
+    if why is not None:
+        return {"cuda_breakdown_skipped": why}
+    snap, cam = _snapshot_and_camera(scene, w, h)
+    return frame_breakdown(ctx, snap, cam.camera(w, h), repeat)
 
 
 def run(args: argparse.Namespace) -> list[dict]:
@@ -101,7 +139,10 @@ def run(args: argparse.Namespace) -> list[dict]:
     if args.live:
         from app.bench.viewer_live import run_live
 
-        return run_live(args.seconds)
+        return run_live(args.seconds, data=args.data, style=args.style, preset=args.preset,
+                        stylize_preset=args.stylize_preset, latency_splats=args.latency_splats,
+                        latency_size=args.latency_size,
+                        phases=tuple(p.strip() for p in args.phases.split(",") if p.strip()))
     import numpy as np
 
     from app.bench.raster import bench_scene
@@ -111,8 +152,20 @@ def run(args: argparse.Namespace) -> list[dict]:
 
     ns = [int(float(v)) for v in args.n.split(",")] if args.n else list(DEFAULT_NS)
     w, h = parse_size(args.size)
-    ctx = create_context(args.backend, require=430 if args.gpu_sort_max > 0 else 330)
+    ctx = create_context(args.backend, require=430 if args.gpu_sort_max > 0 and not args.cuda_only else 330)
     gl_name = context_backend(ctx)
+    if args.cuda_only:
+        rows = []
+        for n in ns:
+            scene = bench_scene(n, w, h, 3)
+            row = {"n": n, "width": w, "height": h, **_cuda_breakdown(ctx, scene, w, h, args.repeat)}
+            if not args.no_paths:
+                row.update(_display_paths(ctx, scene, w, h, args.repeat))
+            row["gl"] = gl_name.split(",")[0]
+            rows.append(row)
+            print(f"bench viewer: {n} done", file=sys.stderr)
+        ctx.release()
+        return rows
     off = Offscreen(ctx, w, h)
     rows = []
     for n in ns:
@@ -182,6 +235,7 @@ def run(args: argparse.Namespace) -> list[dict]:
         r.release()
         if not args.no_paths:
             row.update(_display_paths(ctx, scene, w, h, args.repeat))
+        row.update(_cuda_breakdown(ctx, scene, w, h, args.repeat))
         if not args.no_cpu:
             import torch
 

@@ -6,15 +6,18 @@ Candidates (``PATHS``):
 - ``gl-gpu-sort``: renderer_gl with its compute-shader sort (GL 4.3, not on a software renderer, where it is far
   slower than numpy);
 - ``cuda``: the training rasterizer through gsplat, shown as a texture (app/viewer/display_cuda.py), where torch
-  sees a CUDA device and gsplat imports.
+  sees a CUDA device and gsplat imports; timed with each way into the texture (``cuda/pinned``: a copy through
+  pinned host memory; ``cuda/interop``: CUDA-GL interop, no host copy, where cuda-python imports and the GL context
+  can be registered with CUDA).
 
 A GL path is timed with each accumulation format that shows no visible loss (f4, and f2: 46 dB against the
 training rasterizer on the fox, docs/gpu.md) and keeps the faster; on software GL with f4 alone (f2 is slower
 there), so that a machine with one candidate spends no time choosing. Each candidate draws a few frames of a turning
 camera (so the sort is in each frame, as when the user turns the view), in turn; the fastest median wins, unless
-an earlier candidate (in the order above, f4 before f2) is within 5% of it. A candidate that
-cannot run, or raises, is skipped with its reason. An override (``override=``, or the environment variable
-``SPLATSTYLER_DISPLAY_PATH``) names the path to use without timing the others.
+an earlier candidate (in the order above, f4 before f2, pinned before interop) is within 5% of it. A candidate that
+cannot run, or raises, is skipped with its reason (a CUDA-GL registration refused by the driver, say). An override
+(``override=``, or the environment variable ``SPLATSTYLER_DISPLAY_PATH``) names the path to use without timing the
+others; ``cuda`` alone means interop where it works, else the pinned copy (the display says why).
 """
 
 from __future__ import annotations
@@ -31,20 +34,23 @@ PATHS = ("gl-cpu-sort", "gl-gpu-sort", "cuda")
 ENV = "SPLATSTYLER_DISPLAY_PATH"
 MARGIN = 0.05  # a candidate must be this much faster than an earlier one to be chosen over it
 GL_FORMATS = ("f4", "f2")  # accumulation formats without visible loss; f1 loses faint splats (docs/gpu.md)
+CUDA_TRANSFERS = ("pinned", "interop")  # how the CUDA path's picture reaches its texture (display_cuda.py)
 
 
 @dataclass
 class DisplayChoice:
     """What ``choose_display_path`` decided. ``path``: one of PATHS; ``accum_dtype``: the GL renderer's format for
     a GL path (None for cuda); ``frame_ms``: the median turning-camera frame of every candidate timed, by label
-    ("gl-cpu-sort/f4", "cuda", ...); ``skipped``: path -> why it was not timed or failed; ``reason``: how the
-    choice was made (one line, for the UI)."""
+    ("gl-cpu-sort/f4", "cuda/interop", ...); ``skipped``: path or label -> why it was not timed or failed;
+    ``reason``: how the choice was made (one line, for the UI); ``transfer``: the cuda path's way into its
+    texture (None for a GL path)."""
 
     path: str
     accum_dtype: str | None
     frame_ms: dict[str, float] = field(default_factory=dict)
     skipped: dict[str, str] = field(default_factory=dict)
     reason: str = ""
+    transfer: str | None = None
 
     @property
     def sort_on(self) -> str | None:
@@ -54,8 +60,34 @@ class DisplayChoice:
         """Keyword arguments for ``SplatRenderer`` on a GL path (sort_on, accum_dtype); {} for cuda."""
         return {} if self.path == "cuda" else {"sort_on": self.sort_on, "accum_dtype": self.accum_dtype}
 
+    def cuda_options(self) -> dict:
+        """Keyword arguments for ``CudaDisplay`` on the cuda path (transfer; it falls back to pinned by itself)."""
+        return {"transfer": self.transfer or "pinned"}
+
     def label(self) -> str:
-        return self.path if self.accum_dtype is None else f"{self.path}/{self.accum_dtype}"
+        return _label(self.path, self.accum_dtype, self.transfer)
+
+    def interop_note(self, cuda_display=None) -> str | None:
+        """One line for the UI when the cuda path draws without CUDA-GL interop: why (``cuda_display``: the view's
+        CudaDisplay, which may have dropped interop in the middle of a session), or None."""
+        if self.path != "cuda":
+            return None
+        reason = getattr(cuda_display, "fallback_reason", None)
+        if reason:
+            return f"CUDA-GL interop off: {reason}"
+        if self.transfer == "interop":
+            return None
+        if "cuda/interop" in self.skipped:
+            return f"CUDA-GL interop not used: {self.skipped['cuda/interop']}"
+        timed = self.frame_ms.get("cuda/interop"), self.frame_ms.get("cuda/pinned")
+        if None not in timed:
+            return f"CUDA-GL interop not used: {timed[0]:.1f} ms a frame against {timed[1]:.1f} ms pinned"
+        return None
+
+
+def _label(path: str, accum_dtype: str | None, transfer: str | None) -> str:
+    suffix = accum_dtype or transfer
+    return path if suffix is None else f"{path}/{suffix}"
 
 
 @dataclass
@@ -66,10 +98,11 @@ class Candidate:
     path: str
     accum_dtype: str | None
     make: Callable[[], tuple[Callable, Callable]]
+    transfer: str | None = None
 
     @property
     def label(self) -> str:
-        return self.path if self.accum_dtype is None else f"{self.path}/{self.accum_dtype}"
+        return _label(self.path, self.accum_dtype, self.transfer)
 
 
 def unavailable(path: str, ctx) -> str | None:
@@ -92,6 +125,18 @@ def unavailable(path: str, ctx) -> str | None:
             return "torch sees no CUDA device"
         if not _have_gsplat():
             return "gsplat does not import"
+    return None
+
+
+def interop_unavailable() -> str | None:
+    """Why the cuda path cannot try CUDA-GL interop here (cuda-python missing), or None: whether the GL context
+    can be registered is found out by trying, when the candidate is timed."""
+    from app.viewer.display_interop import InteropError, load_runtime
+
+    try:
+        load_runtime()
+    except InteropError as exc:
+        return str(exc)
     return None
 
 
@@ -134,16 +179,22 @@ def gl_candidate(ctx, snap, path: str, accum_dtype: str) -> Candidate:
     return Candidate(path, accum_dtype, make)
 
 
-def cuda_candidate(ctx, snap, backend: str = "cuda") -> Candidate:
-    """The CUDA display path (``backend`` "torch" or "cpu" runs the same code on CPU tensors: tests)."""
+def cuda_candidate(ctx, snap, backend: str = "cuda", transfer: str = "pinned", runtime=None) -> Candidate:
+    """The CUDA display path with one ``transfer`` (``backend`` "torch" or "cpu" runs the same code on CPU tensors:
+    tests; ``runtime``: cuda-python's runtime bindings, None to import them). It does not fall back: an interop
+    failure is this candidate's failure, so that its time is never the pinned copy's under another name."""
     def make():
         from app.viewer.display_cuda import CudaDisplay
 
-        d = CudaDisplay(ctx, backend=backend)
-        d.set_model(snap)
+        d = CudaDisplay(ctx, backend=backend, transfer=transfer, fallback=False, runtime=runtime)
+        try:
+            d.set_model(snap)
+        except BaseException:
+            d.release()
+            raise
         return _offscreen(ctx, d.draw, d.release)
 
-    return Candidate("cuda", None, make)
+    return Candidate("cuda", None, make, transfer)
 
 
 def default_candidates(ctx, snap) -> tuple[list[Candidate], dict[str, str]]:
@@ -154,7 +205,12 @@ def default_candidates(ctx, snap) -> tuple[list[Candidate], dict[str, str]]:
         if why is not None:
             skipped[path] = why
         elif path == "cuda":
-            candidates.append(cuda_candidate(ctx, snap))
+            candidates.append(cuda_candidate(ctx, snap, transfer="pinned"))
+            why_not = interop_unavailable()
+            if why_not is None:
+                candidates.append(cuda_candidate(ctx, snap, transfer="interop"))
+            else:
+                skipped["cuda/interop"] = why_not
         else:
             candidates += [gl_candidate(ctx, snap, path, fmt) for fmt in gl_formats(ctx)]
     return candidates, skipped
@@ -231,8 +287,9 @@ def choose_display_path(ctx, snap, camera, size: tuple[int, int], *, override: s
                         skipped: dict[str, str] | None = None, always_time: bool = False) -> DisplayChoice:
     """Time each candidate drawing ``snap`` (a ModelSnapshot) for ``frames`` frames of ``camera`` (a ViewerCamera)
     turning at ``size``, and return the fastest. ``override`` ("auto" or None: measure; a name from PATHS, or
-    "PATH/FORMAT" for a GL path: use that, unless this machine cannot run it: then measure, and say so in
-    ``reason``) defaults to the environment variable SPLATSTYLER_DISPLAY_PATH.
+    "PATH/FORMAT" for a GL path, "cuda/pinned" or "cuda/interop": use that, unless this machine cannot run it:
+    then measure, and say so in ``reason``; "cuda" alone: interop, falling back to pinned) defaults to the
+    environment variable SPLATSTYLER_DISPLAY_PATH.
     ``candidates``/``skipped`` replace ``default_candidates`` (tests, benchmarks). A single candidate is returned
     untimed unless ``always_time`` (benchmarks)."""
     if override is None:
@@ -243,12 +300,15 @@ def choose_display_path(ctx, snap, camera, size: tuple[int, int], *, override: s
     skipped = dict(skipped or {})
     if override != "auto":
         path, _, fmt = override.partition("/")
-        if path not in PATHS or (fmt and (path == "cuda" or fmt not in ("f4", "f2", "f1"))):
+        allowed = CUDA_TRANSFERS if path == "cuda" else ("f4", "f2", "f1")
+        if path not in PATHS or (fmt and fmt not in allowed):
             raise ValueError(f"unknown display path {override!r}; expected auto, "
-                             f"{', '.join(PATHS)} (or gl-...-sort/f4|f2|f1)")
+                             f"{', '.join(PATHS)} (or gl-...-sort/f4|f2|f1, cuda/pinned|interop)")
         if path not in skipped:
-            return DisplayChoice(path, None if path == "cuda" else (fmt or "f4"), skipped=skipped,
-                                 reason=f"set by the setting ({override})")
+            if path == "cuda":
+                return DisplayChoice(path, None, skipped=skipped, reason=f"set by the setting ({override})",
+                                     transfer=fmt or "interop")
+            return DisplayChoice(path, fmt or "f4", skipped=skipped, reason=f"set by the setting ({override})")
         # asked for a path this machine cannot run: say so, and choose as if nothing were asked
         note = f"{override} was asked for but cannot run here ({skipped[path]}); "
     else:
@@ -256,7 +316,8 @@ def choose_display_path(ctx, snap, camera, size: tuple[int, int], *, override: s
     if len(candidates) == 1 and not always_time:  # nothing to choose between: no frames spent timing
         c = candidates[0]
         return DisplayChoice(c.path, c.accum_dtype, skipped=skipped,
-                             reason=note + "the only candidate on this machine (others: see skipped)")
+                             reason=note + "the only candidate on this machine (others: see skipped)",
+                             transfer=c.transfer)
     cameras = turning_cameras(camera, frames, size)
     times = time_candidates(candidates, cameras, skipped)
     if not times:
@@ -265,4 +326,4 @@ def choose_display_path(ctx, snap, camera, size: tuple[int, int], *, override: s
     c = pick(candidates, times)
     return DisplayChoice(c.path, c.accum_dtype, times, skipped,
                          reason=note + f"fastest of {len(times)} timed at {size[0]}x{size[1]} (within "
-                                       f"{MARGIN:.0%}): {times[c.label]:.1f} ms a frame")
+                                       f"{MARGIN:.0%}): {times[c.label]:.1f} ms a frame", transfer=c.transfer)

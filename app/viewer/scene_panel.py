@@ -42,7 +42,8 @@ def _path_row(app, label: str, attr: str, action, filters: list[str]) -> None:
             app.guarded(f"open {label}", action, path)
 
 
-DISPLAY_CHOICES = ("auto", "gl-cpu-sort", "gl-cpu-sort/f2", "gl-gpu-sort", "gl-gpu-sort/f2", "cuda")
+DISPLAY_CHOICES = ("auto", "gl-cpu-sort", "gl-cpu-sort/f2", "gl-gpu-sort", "gl-gpu-sort/f2", "cuda", "cuda/pinned",
+                   "cuda/interop")
 
 
 def display_path_row(app) -> None:
@@ -56,6 +57,9 @@ def display_path_row(app) -> None:
     if choice is not None:
         imgui.text_disabled(f"drawing with {choice.label()}")
         imgui.set_item_tooltip("\n".join([choice.reason] + [f"{k}: {v}" for k, v in choice.skipped.items()]))
+        note = choice.interop_note(view.cuda)
+        if note:
+            imgui.text_disabled(note)
 
 
 def scene_panel(app) -> None:

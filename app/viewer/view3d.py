@@ -107,7 +107,7 @@ class View3D:
         if choice.path == "cuda":
             from app.viewer.display_cuda import CudaDisplay
 
-            self.cuda = CudaDisplay(self.ctx)
+            self.cuda = CudaDisplay(self.ctx, **choice.cuda_options())
             self.cuda.set_model(self._models[0])
         elif choice.renderer_options() != self.renderer.options():
             self.renderer.release()
