@@ -133,9 +133,9 @@ def test_photos_are_staged_upright_and_shrunk(tmp_path):
 @pytest.mark.slow
 @pytest.mark.skipif(not FERN.is_dir(), reason="shared llff_fern photos not available (../shared)")
 def test_sfm_that_places_under_half_the_photos_fails_unless_partial_is_allowed(tmp_path):
-    """Four fern views among five paintings that overlap nothing: a model of four photos is written, but sfm says
-    in one line that it failed (registered/total, points, the photos left out) and exits 1; --allow-partial
-    keeps it with exit 0."""
+    """Four fern views among five paintings that overlap nothing: sfm says in one line that it failed
+    (registered/total, points, the photos left out), exits 1 and writes nothing; --allow-partial into the same
+    folder keeps the model with exit 0."""
     styles = REPO.parent / "shared" / "data" / "styles"
     photos = tmp_path / "photos"
     for p in sorted(FERN.iterdir())[:4] + sorted(styles.glob("*.jpg"))[:5]:
@@ -147,5 +147,7 @@ def test_sfm_that_places_under_half_the_photos_fails_unless_partial_is_allowed(t
     line = [s for s in failed.stderr.splitlines() if s.startswith("splatstyler: error")]
     assert len(line) == 1 and "SfM failed: registered" in line[0] and "/9 photos" in line[0], failed.stderr
     assert "styles_" in line[0]  # the photos left out are named
-    partial = _cli("sfm", str(photos), "-o", str(tmp_path / "data2"), "--max-features", "1024", "--allow-partial")
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["photos"]  # no model that `info` would load
+    partial = _cli("sfm", str(photos), "-o", str(tmp_path / "data"), "--max-features", "1024", "--allow-partial")
     assert partial.returncode == 0, partial.stderr
+    assert len(load_scene(tmp_path / "data", load_images=False).cameras) < 9

@@ -56,7 +56,11 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--background", choices=("black", "white", "random"), default=None,
                    help="background colour behind the Gaussians (default black)")
     p.add_argument("--resume", action="store_true", help="continue from OUT/checkpoint.pt (its settings, "
-                                                         "with --iters allowed to extend the run)")
+                                                         "with --iters allowed to extend the run); it must have "
+                                                         "been made from this DATA, else exit 2")
+    p.add_argument("--force", action="store_true",
+                   help="with --resume: when OUT/checkpoint.pt was made from other data, start afresh (replacing "
+                        "it) instead of stopping")
     p.add_argument("--checkpoint-every", type=int, default=1000, metavar="N",
                    help="save OUT/checkpoint.pt every N iterations (0: only on Ctrl-C and at the end)")
     p.add_argument("--seed", type=int, default=None, help="random seed (default 0)")
@@ -130,6 +134,7 @@ def run(args) -> int:
     from training.reconstruct.time_estimate import (TIMED_STEPS, estimate_seconds, format_duration,
                                                       time_first_steps)
     from training.core.atomic_write import check_output_dir, make_output_dir
+    from training.scene.fingerprint import InputsChanged, check_same_inputs, dataset_fingerprint, make_fingerprint
 
     _one_line_warnings()
     out = Path(args.output)
@@ -137,9 +142,22 @@ def run(args) -> int:
         raise InputError(out, "the output path exists and is not a folder")
     check_output_dir(out)
     ckpt_path = out / CHECKPOINT_NAME
+    # the data only: a resumed run takes its settings from the checkpoint, so they cannot differ from it
+    fingerprint = make_fingerprint(dataset=dataset_fingerprint(args.data))
     state = None
     if args.resume:
         state = load_checkpoint(ckpt_path)
+        try:
+            warning = check_same_inputs(state.get("fingerprint"), fingerprint, ckpt_path)
+        except InputsChanged as exc:
+            if not args.force:
+                raise
+            print(f"splatstyler: {ckpt_path}: made from other inputs ({exc.difference}): starting afresh "
+                  f"(--force)", file=sys.stderr)
+            state, warning = None, None
+        if warning:
+            print(f"splatstyler: warning: {warning}", file=sys.stderr)
+    if state is not None:
         cfg = ReconstructConfig.from_dict(state["config"])
         if args.iters is not None:
             cfg.iterations = args.iters
@@ -180,6 +198,7 @@ def run(args) -> int:
         s = trainer.state_dict()
         s["elapsed"] = elapsed + (time.perf_counter() - t_start)
         s["report_extra"] = report_extra
+        s["fingerprint"] = fingerprint
         save_checkpoint(ckpt_path, s)
 
     from app.progress import ProgressBar
@@ -233,6 +252,7 @@ def run(args) -> int:
         "iterations": trainer.step_count,
         **report_extra,
         "nan_recoveries": trainer.recoveries,
+        "fingerprint": fingerprint,
         "settings": {
             "data": str(Path(args.data).resolve()),
             "depth_used": trainer.depth_mode,

@@ -6,7 +6,7 @@ import argparse
 
 
 def register(sub: argparse._SubParsersAction) -> None:
-    from training.scene.sfm import CAMERA_MODELS
+    from training.scene.sfm import CAMERA_MODELS, MIN_POINTS
 
     parser = sub.add_parser(
         "sfm", help="structure from motion: photos folder -> COLMAP scene folder (images/ + sparse/0)",
@@ -14,7 +14,8 @@ def register(sub: argparse._SubParsersAction) -> None:
                     "sequential in name order above), incremental mapping (retried with relaxed initialisation "
                     "when it finds no initial pair or places fewer than half the photos), undistortion. Writes "
                     "DATA/images, DATA/sparse/0, DATA/database.db and DATA/sfm_report.json (quality summary), "
-                    "which `splatstyler reconstruct DATA` reads.")
+                    "which `splatstyler reconstruct DATA` reads. DATA appears only when complete: a failed, "
+                    "interrupted or killed run leaves nothing in the way of the next.")
     parser.add_argument("photos", metavar="PHOTOS", help="folder holding the photos (PNG, JPEG, TIFF, EXR, ...)")
     parser.add_argument("-o", "--output", metavar="DATA", required=True,
                         help="scene folder to create (must not already hold images/ or sparse/)")
@@ -34,42 +35,53 @@ def register(sub: argparse._SubParsersAction) -> None:
     parser.add_argument("--verbose", action="store_true", help="show COLMAP's own log lines")
     parser.add_argument("--allow-partial", action="store_true",
                         help=f"keep a model that placed fewer than half the photos or has fewer than "
-                             f"{MIN_POINTS} points (by default that is a failure: exit 1)")
+                             f"{MIN_POINTS} points (by default that is a failure: exit 1, nothing written)")
     parser.set_defaults(func=run)
 
 
-# Fewer points than this is not a scene to reconstruct: the depth regularizer aligns each view's depth to the SfM
-# points it sees and needs at least 10 of them in a view (training/reconstruct/depth_targets.py), and the Gaussians
-# start from the points, where the presets' own random start uses 5000 or more; a hundred points spread over a
-# capture leave most views under that 10.
-MIN_POINTS = 100
+def sfm_fingerprint(args: argparse.Namespace) -> dict:
+    """The fingerprint (photos and settings) a run with these arguments records in DATA/sfm_report.json."""
+    from pathlib import Path
+
+    from training.scene.fingerprint import make_fingerprint, photos_fingerprint
+    from training.scene.sfm import list_photos, sfm_settings
+
+    return make_fingerprint(photos=photos_fingerprint(list_photos(Path(args.photos))),
+                            settings=sfm_settings(args.max_size, args.max_features, args.matcher,
+                                                  args.camera_model, args.refine_principal_point))
 
 
 def run(args: argparse.Namespace) -> int:
     import sys
 
-    from training.scene.sfm import REPORT_NAME, name_list, run_sfm, summary_line
+    from training.scene.sfm import REPORT_NAME, SfmFailed, run_sfm, summary_line
 
-    result = run_sfm(args.photos, args.output, max_size=args.max_size, max_features=args.max_features,
-                     matcher=args.matcher, log=lambda line: print(line, flush=True),
-                     progress=sys.stderr.isatty(), verbose=args.verbose, camera_model=args.camera_model,
-                     refine_principal_point=args.refine_principal_point)
+    try:
+        result = run_sfm(args.photos, args.output, max_size=args.max_size, max_features=args.max_features,
+                         matcher=args.matcher, log=lambda line: print(line, flush=True),
+                         progress=sys.stderr.isatty(), verbose=args.verbose, camera_model=args.camera_model,
+                         refine_principal_point=args.refine_principal_point, allow_partial=args.allow_partial)
+    except SfmFailed as exc:
+        print(summary_line(exc.result.report))
+        _notes(exc.result)
+        print(f"splatstyler: error: {exc}", file=sys.stderr)
+        return 1
     total = sum(result.seconds.values())
     stages = ", ".join(f"{k} {v:.1f}s" for k, v in result.seconds.items())
     print(f"{summary_line(result.report)}; {result.matcher} matching; {total:.1f} s ({stages})")
     print(f"scene written to {result.output} (images/, sparse/0, {REPORT_NAME})")
+    _notes(result)
+    return 0
+
+
+def _notes(result) -> None:
+    import sys
+
+    from training.scene.sfm import name_list
+
     if result.no_overlap:
         print(f"note: {len(result.no_overlap)} photos overlap no other photo and are left out: "
               f"{name_list(result.no_overlap)}", file=sys.stderr)
     if result.unregistered:
         print(f"note: {len(result.unregistered)} photos could not be placed and are left out: "
               f"{name_list(result.unregistered)}", file=sys.stderr)
-    too_few_photos = 2 * result.num_registered < result.num_photos
-    if (too_few_photos or result.num_points < MIN_POINTS) and not args.allow_partial:
-        left_out = result.unregistered + result.no_overlap
-        print(f"splatstyler: error: {args.photos}: SfM failed: registered {result.num_registered}/"
-              f"{result.num_photos} photos, {result.num_points} points (needs at least half the photos and "
-              f"{MIN_POINTS} points); left out: {name_list(left_out) if left_out else 'none'} "
-              f"(--allow-partial keeps this model)", file=sys.stderr)
-        return 1
-    return 0

@@ -8,6 +8,12 @@ renders, structure kept); the last lines printed sum them up.
 --mask, --box or --sphere stylizes only the selected Gaussians; every other Gaussian's colour stays bit-identical
 (colour transfer included). Run it again on the output with another selection and painting to give several
 regions different styles.
+
+Ctrl-C or SIGTERM after the first iteration saves the model so far and OUT/stylize_checkpoint.pt; once the
+iterations and the colour transfer are done, both are saved before the metrics and renders. --resume continues
+from that checkpoint: the same model, data, painting, selection and the settings fixed at the start (view order,
+virtual views, preset, render size, colour transfer, scene kind, seed, --params) are required, while the loss
+settings may differ. The checkpoint is removed once the report is written.
 """
 
 from __future__ import annotations
@@ -89,6 +95,12 @@ def register(sub: argparse._SubParsersAction) -> None:
                         f"nearest path (default {METRIC_PAIRS})")
     p.add_argument("--no-metrics", action="store_true",
                    help="skip the report's consistency, style and content metrics (docs/evaluation.md)")
+    p.add_argument("--resume", action="store_true",
+                   help="continue the interrupted stylization in OUT (OUT/stylize_checkpoint.pt); it must have been "
+                        "made from these inputs and fixed settings, else exit 2")
+    p.add_argument("--force", action="store_true",
+                   help="with --resume: when the checkpoint was made from other inputs, start afresh instead of "
+                        "stopping")
     p.set_defaults(func=run)
 
 
@@ -141,6 +153,8 @@ def default_preset(device: str, backend: str | None = None) -> str:
 def run(args: argparse.Namespace) -> int:
     import time
 
+    import sys
+
     from training.core.errors import InputError
     from training.stylize.pipeline import stylize_to_folder
 
@@ -157,7 +171,9 @@ def run(args: argparse.Namespace) -> int:
         report = stylize_to_folder(Path(args.model), Path(args.data), Path(args.style), Path(args.output), config,
                                    vgg_weights=args.vgg_weights, listener=bar, mask=mask,
                                    log=lambda line: print(line, flush=True),
-                                   metrics=None if args.no_metrics else Measure(args.metric_pairs))
+                                   metrics=None if args.no_metrics else Measure(args.metric_pairs),
+                                   resume=args.resume, force=args.force,
+                                   warn=lambda line: print(f"splatstyler: warning: {line}", file=sys.stderr))
     finally:
         bar.close()
     print(f"stylized {report['num_views']} views in {report['iterations']} iterations "

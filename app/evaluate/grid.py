@@ -68,12 +68,14 @@ EXPECT_OPS = ("<", ">")
 @dataclass(frozen=True)
 class Job:
     """One unit of work for a worker: ``kind`` is "sfm", "reconstruct" or "cell"; ``deps`` name the jobs whose
-    outputs it reads; ``spec`` is plain JSON (it travels to another process or machine)."""
+    outputs it reads; ``spec`` is plain JSON (it travels to another process or machine); ``inputs`` the
+    fingerprint of the grid's files it reads (``with_inputs``), recorded with its result."""
 
     id: str
     kind: str
     spec: dict[str, Any]
     deps: tuple[str, ...] = ()
+    inputs: dict[str, Any] = field(default_factory=dict)
 
 
 @dataclass
@@ -226,6 +228,9 @@ def load_grid(path: str | Path) -> Grid:
 
     groups = []
     for name, spec in _table(doc, "groups", path).items():
+        _check_name(name, "group", path)  # it names the group's plot and sheets, and links to them
+        if not isinstance(spec, dict):
+            raise InputError(path, f"[groups.{name}] must be a table")
         extra = sorted(set(spec) - set(GROUP_KEYS))
         if extra:
             raise InputError(path, f"[groups.{name}]: unknown key {extra[0]!r} ({', '.join(GROUP_KEYS)})")
@@ -275,6 +280,28 @@ def load_grid(path: str | Path) -> Grid:
     return Grid(path=path, title=doc.get("title", path.stem), intro=doc.get("intro", ""),
                 discussion=doc.get("discussion", ""), seeds=seeds, scenes=scenes, paintings=paintings,
                 settings=settings, groups=groups, jobs=jobs, sheet_views=int(doc.get("sheet_views", 3)))
+
+
+def with_inputs(grid: Grid) -> list[Job]:
+    """The grid's jobs with ``inputs``: the fingerprint (training/scene/fingerprint.py) of the scene each reads (a
+    dataset's cameras, or the photos SfM reads) and of a cell's painting. A recorded job whose inputs differ runs
+    again, though its file names are the same."""
+    from dataclasses import replace
+
+    from training.scene.fingerprint import dataset_fingerprint, file_sha256, photos_fingerprint
+    from training.scene.sfm import list_photos
+
+    scenes = {name: ({"dataset": dataset_fingerprint(s["data"])} if "data" in s else
+                     {"photos": photos_fingerprint(list_photos(Path(s["photos"])))})
+              for name, s in grid.scenes.items()}
+    paintings = {name: file_sha256(p) for name, p in grid.paintings.items()}
+    out = []
+    for job in grid.jobs:
+        inputs = dict(scenes[job.spec["scene"]])
+        if job.kind == "cell":
+            inputs["painting"] = paintings[job.spec["painting"]]
+        out.append(replace(job, inputs=inputs))
+    return out
 
 
 def job_dir(out: Path, job: Job | str) -> Path:

@@ -3,7 +3,9 @@
 ``run_job(job, out, threads)`` runs in a worker process (the local pool) or a Ray task, and returns a plain dict (the
 result travels back to the driver, which records it). Each job runs the same code as the CLI subcommands, in
 process, with its console output captured in OUT/logs/<job id>.log. A job whose outputs are already complete
-returns at once (a resumed grid); an interrupted reconstruction continues from its checkpoint.
+and were made from the same inputs (the fingerprint in them: training/scene/fingerprint.py) returns at once (a
+resumed grid); outputs made from other inputs are made again; an interrupted reconstruction continues from its
+checkpoint when that was made from the same data.
 """
 
 from __future__ import annotations
@@ -106,26 +108,72 @@ def _limit_threads(threads: int) -> None:
 
 
 def _sfm(job: Job, out: Path, log_path: Path) -> dict[str, Any]:
+    import shutil
+
+    from app.cli import build_parser
+    from app.commands.sfm import sfm_fingerprint
+    from training.scene.fingerprint import difference
+    from training.scene.sfm import REPORT_NAME, sfm_complete
+
     folder = job_dir(out, job)
-    report = folder / "sfm_report.json"
-    if not report.is_file():
-        _cli(["sfm", job.spec["photos"], "-o", str(folder), *job.spec["flags"]], log_path)
-    summary = json.loads(report.read_text())
-    return {"sfm": {k: v for k, v in summary.items() if isinstance(v, (int, float, str))}}
+    report = folder / REPORT_NAME
+    argv = ["sfm", job.spec["photos"], "-o", str(folder), *job.spec["flags"]]
+    if sfm_complete(folder):
+        recorded = json.loads(report.read_text()).get("fingerprint")
+        changed = "made before SfM recorded its inputs" if not recorded else \
+            difference(recorded, sfm_fingerprint(build_parser().parse_args(argv)))
+        if changed is None:
+            return {"sfm": _plain_values(json.loads(report.read_text()))}
+        print(f"the scene in {folder} was made from other photos or settings ({changed}): running SfM again",
+              flush=True)
+    if folder.exists():
+        shutil.rmtree(folder)  # the grid's own folder: an older scene, or what a failed run left
+    _cli(argv, log_path)
+    return {"sfm": _plain_values(json.loads(report.read_text()))}
+
+
+def _plain_values(summary: dict) -> dict:
+    return {k: v for k, v in summary.items() if isinstance(v, (int, float, str))}
 
 
 def _reconstruct(job: Job, out: Path, log_path: Path) -> dict[str, Any]:
+    from training.scene.fingerprint import dataset_fingerprint, difference
+
     folder = job_dir(out, job)
     report = folder / "report.json"
-    if not (report.is_file() and (folder / "point_cloud.ply").is_file()):
-        argv = ["reconstruct", str(data_path(out, job.spec)), "-o", str(folder), *job.spec["flags"],
+    data = data_path(out, job.spec)
+    done = report.is_file() and (folder / "point_cloud.ply").is_file()
+    if done:
+        made = json.loads(report.read_text())
+        if made.get("fingerprint"):
+            changed = difference(made["fingerprint"], {"dataset": dataset_fingerprint(data)})
+        else:  # from before fingerprints: the data's path is all there is to go by
+            recorded = made.get("settings", {}).get("data")
+            changed = None if recorded == str(data.resolve()) else f"data {data} now, {recorded} then"
+        if changed:
+            print(f"the reconstruction in {folder} was made from other data ({changed}): reconstructing again",
+                  flush=True)
+            (folder / "checkpoint.pt").unlink(missing_ok=True)
+            done = False
+    if not done:
+        argv = ["reconstruct", str(data), "-o", str(folder), *job.spec["flags"],
                 "--checkpoint-every", str(RECON_CHECKPOINT_EVERY), "--no-progress"]
         if (folder / "checkpoint.pt").is_file():
-            argv.append("--resume")  # a killed grid continues where the reconstruction stopped
+            # a killed grid continues where the reconstruction stopped, if it was of this data
+            argv += ["--resume", "--force"]
         _cli(argv, log_path)
     r = json.loads(report.read_text())
     keys = ("test_psnr", "test_ssim", "test_lpips", "num_gaussians", "aniso_p95", "smax_p95", "seconds")
     return {"reconstruction": {k: r.get(k) for k in keys}, "model": str(folder / "point_cloud.ply")}
+
+
+def _cell_made_from(spec: dict[str, Any], recon: Path, data: Path) -> dict[str, Any]:
+    """What a cell reads: the scene's cameras, the reconstruction it stylizes, the painting (fingerprints)."""
+    from training.scene.fingerprint import dataset_fingerprint, file_sha256
+
+    model = recon / "point_cloud.ply"
+    return {"dataset": dataset_fingerprint(data), "model": file_sha256(model) if model.is_file() else None,
+            "painting": file_sha256(spec["painting_path"])}
 
 
 def _cell(job: Job, out: Path, log_path: Path) -> dict[str, Any]:
@@ -134,7 +182,13 @@ def _cell(job: Job, out: Path, log_path: Path) -> dict[str, Any]:
     recon = job_dir(out, job.spec["recon_job"])
     spec = job.spec
     spec_path = folder / "job.json"
-    fresh = report_path.is_file() and spec_path.is_file() and json.loads(spec_path.read_text()) == spec
+    made = _cell_made_from(spec, recon, data_path(out, spec))
+    fresh = False
+    if report_path.is_file() and spec_path.is_file():
+        recorded = json.loads(spec_path.read_text())
+        # {"spec", "inputs"}; a bare spec from before inputs were recorded cannot be checked for them
+        fresh = recorded == {"spec": spec, "inputs": made} or (
+            recorded == spec and report_path.stat().st_mtime >= (recon / "point_cloud.ply").stat().st_mtime)
     if fresh and spec["method"] == "2d":  # its saved renders are 8-bit PNGs: measured again only by redoing it
         fresh = json.loads(report_path.read_text()).get("metrics_version") == METRICS_VERSION
     if not fresh:  # not run yet, interrupted, or run with other settings before the grid file changed
@@ -147,7 +201,7 @@ def _cell(job: Job, out: Path, log_path: Path) -> dict[str, Any]:
             _cli(["stylize", str(recon / "point_cloud.ply"), "--data", str(data_path(out, spec)),
                   "--style", spec["painting_path"], "-o", str(folder), *spec["flags"]], log_path)
         with atomic_open(spec_path, "w") as f:
-            json.dump(spec, f, indent=2)
+            json.dump({"spec": spec, "inputs": made}, f, indent=2)
     report = json.loads(report_path.read_text())
     if report.get("metrics_version") != METRICS_VERSION:
         # the metrics changed since this cell ran: measure its saved result again

@@ -19,7 +19,7 @@ from typing import Any
 import numpy as np
 
 from app.evaluate.grid import Grid, Group, job_dir
-from training.core.atomic_write import atomic_open
+from training.core.atomic_write import atomic_open, atomic_path
 
 SHEET_CELL = 256  # the quick preset renders at 256 px: shown as rendered
 ID_COLUMNS = ("scene", "setting", "painting", "seed", "reconstruction", "method")
@@ -200,9 +200,11 @@ def plot_group(group: Group, rows: list[dict], scenes: list[str], path: Path) ->
     axes[0][0].legend(fontsize=7)
     fig.suptitle(group.title, fontsize=10)
     fig.tight_layout()
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fig.savefig(path, dpi=90)
-    plt.close(fig)
+    try:
+        with atomic_path(path) as tmp:
+            fig.savefig(tmp, dpi=90, format="png")
+    finally:
+        plt.close(fig)
     return True
 
 

@@ -4,7 +4,9 @@ Jobs run as soon as the jobs they read from have finished (sfm, then the shared 
 The driver records every result in OUT/jobs/<job id>.json as it arrives (atomically): a result with status "ok" is
 final, so a killed or interrupted grid started again skips those and continues; a failed job is recorded with its
 one-line error, its dependants are marked failed without running, the rest of the grid goes on, and the next run
-tries the failed ones again.
+tries the failed ones again. A record counts only for the same job made from the same inputs: the record holds the
+job's spec and the fingerprint of the scene and painting it read (``grid.with_inputs``), and a job whose spec or
+inputs changed runs again, and with it every job that reads its outputs; the run says which and why.
 
 Ray (``--ray auto`` or an address): one task per job with one CPU each (``--threads`` of them per task), results
 gathered back through Ray; the workers must see the grid's data, paintings and OUT at the same paths (a shared
@@ -22,7 +24,7 @@ from dataclasses import asdict
 from pathlib import Path
 from typing import Any, Callable
 
-from app.evaluate.grid import Grid, Job
+from app.evaluate.grid import Grid, Job, with_inputs
 from app.evaluate.jobs import run_job
 from training.evaluate.measure import METRICS_VERSION
 from training.core.atomic_write import atomic_open
@@ -47,12 +49,34 @@ def load_results(out: Path, grid: Grid) -> dict[str, dict[str, Any]]:
 
 
 def is_done(result: dict[str, Any] | None, job: Job) -> bool:
-    """A recorded "ok" for this very job: a record made with other settings (the grid file changed), or a cell's
-    made with other metrics, does not count."""
-    if not (result and result.get("status") == "ok" and result.get("job", {}).get("spec") == job.spec):
-        return False
+    """A recorded "ok" for this very job: a record made with other settings (the grid file changed) or from other
+    inputs (``job.inputs``; a record without them, from before they were recorded, cannot be checked and counts),
+    or a cell's made with other metrics, does not count."""
+    return why_not_done(result, job) is None
+
+
+def why_not_done(result: dict[str, Any] | None, job: Job) -> str | None:
+    """None when ``result`` is a finished record of ``job`` (see ``is_done``), else why not, in words."""
+    from training.scene.fingerprint import difference
+
+    if not (result and result.get("status") == "ok"):
+        return "not run yet" if not result else "it failed"
+    recorded = result.get("job", {})
+    old_spec = recorded.get("spec") or {}
+    if old_spec != job.spec:
+        keys = [k for k in sorted(set(old_spec) | set(job.spec)) if old_spec.get(k) != job.spec.get(k)]
+        paths = [k for k in keys if k in ("data", "photos", "painting_path")]
+        if paths:
+            return "; ".join(f"{k} is {job.spec.get(k)} now, {old_spec.get(k)} then" for k in paths)
+        return f"the grid file changed its {', '.join(keys)}"
+    if recorded.get("inputs") and job.inputs:
+        changed = difference(recorded["inputs"], job.inputs)
+        if changed:
+            return changed
     # a cell measured by another version of the metrics is measured again (from its saved model)
-    return job.kind != "cell" or result.get("metrics_version") == METRICS_VERSION
+    if job.kind == "cell" and result.get("metrics_version") != METRICS_VERSION:
+        return "measured by another version of the metrics"
+    return None
 
 
 def _record(out: Path, job: Job, result: dict[str, Any]) -> None:
@@ -153,14 +177,48 @@ def time_left(results: dict[str, dict[str, Any]], jobs: dict[str, Job], remainin
     return total / max(1, capacity)
 
 
+def _to_run(jobs: list[Job], results: dict[str, dict[str, Any]], log: Callable[[str], None]) -> list[Job]:
+    """The jobs (in the grid's order: a job after those it reads) that must run: not finished, or finished from
+    other settings or inputs, or reading the outputs of one that runs again. Says why for each finished job that
+    runs again (cells summed up by reason)."""
+    todo: list[Job] = []
+    todo_ids: set[str] = set()
+    again: dict[str, list[str]] = {}
+    unchecked = 0
+    for job in jobs:
+        result = results.get(job.id)
+        why = why_not_done(result, job)
+        if why is None:
+            rerun = next((d for d in job.deps if d in todo_ids), None)
+            if rerun is None:
+                unchecked += not result.get("job", {}).get("inputs")
+                continue
+            why = f"{rerun} runs again"
+        todo.append(job)
+        todo_ids.add(job.id)
+        if result and result.get("status") == "ok":
+            if job.kind == "cell":
+                again.setdefault(why, []).append(job.id)
+            else:
+                log(f"eval: {job.id} runs again: {why}")
+    for why, ids in again.items():
+        log(f"eval: {ids[0]} runs again: {why}" if len(ids) == 1 else
+            f"eval: {len(ids)} finished cells run again ({ids[0]}, ...): {why}")
+    if unchecked:
+        log(f"eval: {unchecked} finished jobs were recorded without the fingerprint of their inputs (an older "
+            f"version): kept, though their scenes and paintings could not be checked")
+    return todo
+
+
 def run_grid(grid: Grid, out: Path, pool, log: Callable[[str], None] = print,
              only: Callable[[Job], bool] | None = None) -> dict[str, dict[str, Any]]:
     """Run every job of ``grid`` without an "ok" record (those ``only`` accepts, and what they need) on ``pool``;
     returns all results by job id."""
     out = Path(out)
     results = load_results(out, grid)
-    by_id = {j.id: j for j in grid.jobs}
-    wanted = [j for j in grid.jobs if only is None or only(j)]
+    jobs = with_inputs(grid)
+    by_id = {j.id: j for j in jobs}
+    wanted = [j for j in jobs if only is None or only(j)]
     needed: set[str] = set()
     stack = [j.id for j in wanted]
     while stack:
@@ -168,7 +226,7 @@ def run_grid(grid: Grid, out: Path, pool, log: Callable[[str], None] = print,
         if jid not in needed:
             needed.add(jid)
             stack.extend(by_id[jid].deps)
-    todo = [j for j in grid.jobs if j.id in needed and not is_done(results.get(j.id), j)]
+    todo = _to_run([j for j in jobs if j.id in needed], results, log)
     skipped = len(needed) - len(todo)
     log(f"eval: {len(todo)} jobs to run ({skipped} already done) in {out}")
     running: dict[Any, Job] = {}

@@ -2,7 +2,9 @@
 
 A reconstruction stage writes OUT/checkpoint.pt (resumable with ``splatstyler reconstruct --resume``) and
 OUT/point_cloud.ply, whether it finished or was stopped; a stylization stage writes OUT/point_cloud.ply, after the
-post colour transfer when it finished, as it stands when stopped. Both hand the PLY's path to the next stage.
+post colour transfer when it finished, as it stands when stopped, and then also OUT/stylize_checkpoint.pt
+(resumable with ``splatstyler stylize ... --resume``). Both hand the PLY's path to the next stage. The
+checkpoints hold the fingerprint of their inputs (training/scene/fingerprint.py), which a resume checks.
 """
 
 from __future__ import annotations
@@ -37,9 +39,12 @@ def reconstruct_stage(data: str | Path, out: str | Path, preset: str = "quick", 
     def save(trainer, finished: bool, cancel) -> Path:
         from training.model.ply_io import write_ply
         from training.reconstruct.checkpoint import CHECKPOINT_NAME, save_checkpoint
+        from training.scene.fingerprint import dataset_fingerprint, make_fingerprint
 
         out.mkdir(parents=True, exist_ok=True)
-        save_checkpoint(out / CHECKPOINT_NAME, trainer.state_dict())
+        # the data's fingerprint, as the CLI's checkpoints hold it: `reconstruct --resume` checks it
+        save_checkpoint(out / CHECKPOINT_NAME,
+                        {**trainer.state_dict(), "fingerprint": make_fingerprint(dataset=dataset_fingerprint(data))})
         write_ply(out / "point_cloud.ply", trainer.export_gaussians())
         return out / "point_cloud.ply"
 
@@ -75,6 +80,11 @@ def stylize_stage(data: str | Path, style: str | Path, out: str | Path, config=N
             trainer.finish(cancel=cancel)
         out.mkdir(parents=True, exist_ok=True)
         write_ply(out / "point_cloud.ply", trainer.stylized_gaussians())
+        if not finished:  # stopped: `splatstyler stylize ... --resume` can continue it, as it continues the CLI's
+            from training.stylize.checkpoint import CHECKPOINT_NAME, save_stylize_checkpoint, stylize_fingerprint
+
+            save_stylize_checkpoint(out / CHECKPOINT_NAME, trainer, stylize_fingerprint(
+                trainer.model_name, data, style, trainer.config, trainer.mask))
         return out / "point_cloud.ply"
 
     return Stage("stylize", build, save)

@@ -15,8 +15,12 @@ overlap but could not be placed, are named in the result. ``DATA/sfm_report.json
 (registered / total, points, mean reprojection error, mean track length, the settings that worked).
 
 Output: ``DATA/images`` (the registered photos, undistorted), ``DATA/sparse/0`` (COLMAP binary model) and
-``DATA/database.db`` and ``DATA/sfm_report.json``. Everything is built in a hidden work folder inside DATA and moved into place at the end, so a
-failure or Ctrl-C leaves no half-made scene.
+``DATA/database.db`` and ``DATA/sfm_report.json`` (which also holds the fingerprint of the photos and settings,
+training/scene/fingerprint.py). Whole or absent: everything is built in a hidden folder beside DATA,
+``.DATA.sfm-partial``, which is renamed to DATA once complete, so a failure, Ctrl-C or SIGKILL leaves nothing that
+passes for a scene or blocks a rerun (a rerun removes what a killed run left there). A model that places fewer
+than half the photos or has fewer than ``MIN_POINTS`` points is a failure (``SfmFailed``) unless
+``allow_partial``. The report is the done marker (``sfm_complete``), for ``splatstyler sfm`` and the grid alike.
 """
 
 from __future__ import annotations
@@ -24,7 +28,6 @@ from __future__ import annotations
 import json
 import os
 import shutil
-import tempfile
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -40,6 +43,12 @@ EXHAUSTIVE_MAX_IMAGES = 50
 SEQUENTIAL_OVERLAP = 10
 CAMERA_MODELS = ("SIMPLE_RADIAL", "OPENCV", "PINHOLE")
 REPORT_NAME = "sfm_report.json"
+PARTIAL_SUFFIX = ".sfm-partial"
+# Fewer points than this is not a scene to reconstruct: the depth regularizer aligns each view's depth to the SfM
+# points it sees and needs at least 10 of them in a view (training/reconstruct/depth_targets.py), and the Gaussians
+# start from the points, where the presets' own random start uses 5000 or more; a hundred points spread over a
+# capture leave most views under that 10.
+MIN_POINTS = 100
 # COLMAP's default for a verified image pair (TwoViewGeometryOptions.min_num_inliers)
 MIN_PAIR_INLIERS = 15
 
@@ -68,6 +77,34 @@ class SfmResult:
     report: dict = field(default_factory=dict)  # what sfm_report.json holds
 
 
+class SfmFailed(InputError):
+    """Structure from motion ran but its model places too few photos or has too few points; ``result`` says
+    what it found. Nothing was written."""
+
+    def __init__(self, path: Path, problem: str, result: "SfmResult"):
+        super().__init__(path, problem)
+        self.result = result
+
+
+def sfm_complete(folder: str | Path) -> bool:
+    """Whether ``folder`` holds a finished ``run_sfm`` output: its report, which only a complete one has (the
+    done marker of ``splatstyler sfm`` and of the grid)."""
+    folder = Path(folder)
+    return (folder / REPORT_NAME).is_file() and (folder / "sparse" / "0").is_dir()
+
+
+def sfm_settings(max_size: int, max_features: int, matcher: str, camera_model: str,
+                 refine_principal_point: bool) -> dict:
+    """The settings that shape an SfM result, as its fingerprint records them."""
+    return {"max_size": int(max_size), "max_features": int(max_features), "matcher": matcher,
+            "camera_model": camera_model, "refine_principal_point": bool(refine_principal_point)}
+
+
+def partial_folder(output: Path) -> Path:
+    """Where ``run_sfm`` builds ``output`` before renaming it into place."""
+    return output.parent / f".{output.name}{PARTIAL_SUFFIX}"
+
+
 def list_photos(folder: Path) -> list[Path]:
     """The photos directly inside ``folder``, sorted by name."""
     if not folder.exists():
@@ -93,9 +130,13 @@ def choose_matcher(matcher: str, num_photos: int) -> str:
 def run_sfm(photos_dir: str | Path, output: str | Path, max_size: int = 1600, max_features: int = 8192,
             matcher: str = "auto", log: Callable[[str], None] = print, progress: bool = True,
             verbose: bool = False, camera_model: str = "SIMPLE_RADIAL",
-            refine_principal_point: bool = False) -> SfmResult:
-    """Reconstruct cameras and sparse points for the photos in ``photos_dir`` into the scene folder ``output``."""
+            refine_principal_point: bool = False, allow_partial: bool = False) -> SfmResult:
+    """Reconstruct cameras and sparse points for the photos in ``photos_dir`` into the scene folder ``output``
+    (whole or not at all; see the module docstring)."""
     import pycolmap
+
+    from training.core.atomic_write import make_output_dir
+    from training.scene.fingerprint import make_fingerprint, photos_fingerprint
 
     photos_dir, output = Path(photos_dir), Path(output)
     photos = list_photos(photos_dir)
@@ -103,6 +144,7 @@ def run_sfm(photos_dir: str | Path, output: str | Path, max_size: int = 1600, ma
         raise InputError(None, f"--max-size must be at least 16 pixels, got {max_size}")
     if max_features < 64:
         raise InputError(None, f"--max-features must be at least 64, got {max_features}")
+    settings = sfm_settings(max_size, max_features, matcher, camera_model, refine_principal_point)
     matcher = choose_matcher(matcher, len(photos))
     if camera_model not in CAMERA_MODELS:
         raise InputError(None, f"unknown camera model {camera_model!r} ({', '.join(CAMERA_MODELS)})")
@@ -117,11 +159,16 @@ def run_sfm(photos_dir: str | Path, output: str | Path, max_size: int = 1600, ma
     previous_log_level = pycolmap.logging.minloglevel
     if not verbose:
         pycolmap.logging.minloglevel = 3  # COLMAP's own lines would drown ours; its failures reach us as results
-    created_output = not output.exists()
-    output.mkdir(parents=True, exist_ok=True)
-    work = Path(tempfile.mkdtemp(prefix=".sfm-work-", dir=output))
+    make_output_dir(output.parent)
+    partial = partial_folder(output)
+    if partial.exists():
+        log(f"      removing {partial}, left by an interrupted run")
+        shutil.rmtree(partial)
+    work = partial / ".work"
+    work.mkdir(parents=True)
     seconds: dict[str, float] = {}
     try:
+        fingerprint = make_fingerprint(photos=photos_fingerprint(photos), settings=settings)
         image_dir = work / "photos"
         t = time.perf_counter()
         _stage_photos(photos, image_dir, max_size, log, progress)
@@ -180,6 +227,17 @@ def run_sfm(photos_dir: str | Path, output: str | Path, max_size: int = 1600, ma
         if unregistered:
             log(f"      {len(unregistered)} photos overlap others but could not be placed: "
                 f"{name_list(unregistered)}")
+        report = quality_summary(reconstruction, len(photos))
+        result = SfmResult(output, len(photos), reconstruction.num_reg_images(), reconstruction.num_points3D(),
+                           matcher, seconds, mapping, unregistered, no_overlap, report)
+        too_few_photos = 2 * result.num_registered < result.num_photos
+        if (too_few_photos or result.num_points < MIN_POINTS) and not allow_partial:
+            left_out = unregistered + no_overlap
+            raise SfmFailed(photos_dir, f"SfM failed: registered {result.num_registered}/{result.num_photos} "
+                                        f"photos, {result.num_points} points (needs at least half the photos and "
+                                        f"{MIN_POINTS} points); left out: "
+                                        f"{name_list(left_out) if left_out else 'none'} (--allow-partial keeps "
+                                        f"this model)", result)
 
         log(f"[5/5] undistorting {reconstruction.num_reg_images()} registered photos")
         t = time.perf_counter()
@@ -190,28 +248,34 @@ def run_sfm(photos_dir: str | Path, output: str | Path, max_size: int = 1600, ma
         pycolmap.undistort_images(str(undistorted), str(best), str(image_dir), output_type="COLMAP")
         seconds["undistort"] = time.perf_counter() - t
 
-        # the model goes in last: a folder with sparse/0 is a complete scene
-        report = quality_summary(reconstruction, len(photos))
         report.update(camera_model=camera_model, refine_principal_point=refine_principal_point, matcher=matcher,
                       mapping=mapping, unregistered=unregistered, no_overlap=no_overlap,
-                      seconds={k: round(v, 2) for k, v in seconds.items()})
-        os.replace(undistorted / "images", output / "images")
-        os.replace(database, output / "database.db")
-        with atomic_open(output / REPORT_NAME, "w") as f:
+                      seconds={k: round(v, 2) for k, v in seconds.items()}, fingerprint=fingerprint)
+        os.replace(undistorted / "images", partial / "images")
+        os.replace(database, partial / "database.db")
+        (partial / "sparse").mkdir()
+        os.replace(undistorted / "sparse", partial / "sparse" / "0")
+        shutil.rmtree(work)
+        with atomic_open(partial / REPORT_NAME, "w") as f:  # the done marker, last
             json.dump(report, f, indent=2)
-        (output / "sparse").mkdir()
-        os.replace(undistorted / "sparse", output / "sparse" / "0")
-        return SfmResult(output, len(photos), reconstruction.num_reg_images(), reconstruction.num_points3D(),
-                         matcher, seconds, mapping, unregistered, no_overlap, report)
-    except BaseException:
-        if created_output:
-            shutil.rmtree(work, ignore_errors=True)
-            if not any(output.iterdir()):
-                output.rmdir()
-        raise
+        _move_into_place(partial, output)
+        return result
     finally:
-        shutil.rmtree(work, ignore_errors=True)
+        shutil.rmtree(partial, ignore_errors=True)
         pycolmap.logging.minloglevel = previous_log_level
+
+
+def _move_into_place(partial: Path, output: Path) -> None:
+    """Rename the finished ``partial`` to ``output``: at once when ``output`` is absent or an empty folder; into an
+    existing folder entry by entry, the report (the done marker) last."""
+    try:
+        os.replace(partial, output)
+        return
+    except OSError:
+        if not output.is_dir():
+            raise
+    for name in ("images", "database.db", "sparse", REPORT_NAME):
+        os.replace(partial / name, output / name)
 
 
 def _stage_photos(photos: list[Path], image_dir: Path, max_size: int, log: Callable[[str], None],

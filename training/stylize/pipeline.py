@@ -1,9 +1,10 @@
 """The whole ``splatstyler stylize`` job: read the model, the scene and the painting, stylize, write the outputs.
 
-Outputs (each written atomically, and only once stylization has finished, so an error leaves nothing half-made):
-OUT/point_cloud.ply, OUT/renders/NNN_<view>.png for every view of the scene, OUT/report.json, and
-OUT/before_after.png: a contact sheet of ``SHEET_VIEWS`` evenly spaced views, the input model's render beside the
-stylized one, with the painting beside the first row.
+Outputs (each written atomically): OUT/point_cloud.ply, OUT/renders/NNN_<view>.png for every view of the scene,
+OUT/report.json, and OUT/before_after.png: a contact sheet of ``SHEET_VIEWS`` evenly spaced views, the input
+model's render beside the stylized one, with the painting beside the first row. The model and
+OUT/stylize_checkpoint.pt are written as soon as the stylization has finished (or is interrupted after its first
+step), before the metrics and the renders; the checkpoint goes once the report is written.
 """
 
 from __future__ import annotations
@@ -36,18 +37,33 @@ def choose_downscale(data: Path, max_side: int) -> int:
 
 def stylize_to_folder(model: Path, data: Path, style: Path, out: Path, config: StylizeConfig,
                       vgg_weights: str | None = None, listener=None, log=None, mask=None,
-                      metrics: Callable[[Stylizer], dict[str, Any]] | None = None) -> dict[str, Any]:
+                      metrics: Callable[[Stylizer], dict[str, Any]] | None = None, resume: bool = False,
+                      force: bool = False, warn: Callable[[str], None] | None = None) -> dict[str, Any]:
     """Run the job and return the report (also written to OUT/report.json). ``listener`` receives the stylizer's
-    events (training/core/messages.py); ``log`` (a str -> None callable) gets one line describing the run.
-    ``mask``: (N,) bool, stylize only those Gaussians (Stylizer's ``mask``). ``metrics(stylizer)``, called once the
-    stylization has finished, gives the report's "metrics" (the CLI passes training/evaluate's measures, which sit
-    above this package)."""
+    events (training/core/messages.py); ``log`` (a str -> None callable) gets one line describing the run, and
+    ``warn`` the warnings (default: ``warnings.warn``). ``mask``: (N,) bool, stylize only those Gaussians (Stylizer's
+    ``mask``). ``metrics(stylizer)``, called once the stylization has finished, gives the report's "metrics" (the
+    CLI passes training/evaluate's measures, which sit above this package).
+
+    The work is kept as it is made: an interrupt (KeyboardInterrupt: Ctrl-C, SIGTERM) after the first step saves
+    OUT/point_cloud.ply and OUT/stylize_checkpoint.pt before it goes on up; once the iterations and the post
+    colour transfer are done, both are saved before the metrics and renders. ``resume`` continues from that
+    checkpoint (InputsChanged, exit 2, when it was made from other inputs, unless ``force``: then afresh); the
+    checkpoint is removed once the report is written."""
     from training.core.atomic_write import atomic_open, check_output_dir, make_output_dir
+    from training.scene.fingerprint import InputsChanged, check_same_inputs
     from training.scene.image_io import write_image
     from training.model.ply_io import read_ply, write_ply
     from training.scene.loader import load_scene
+    from training.stylize.checkpoint import (CHECKPOINT_NAME, load_stylize_checkpoint, save_stylize_checkpoint,
+                                             stylize_fingerprint)
     from training.stylize.style_image import load_style_image
 
+    if warn is None:
+        import warnings
+
+        warn = warnings.warn
+    say = log or (lambda line: None)
     config.validate()
     t_start = time.perf_counter()
     if out.exists() and not out.is_dir():
@@ -55,37 +71,80 @@ def stylize_to_folder(model: Path, data: Path, style: Path, out: Path, config: S
     check_output_dir(out)
     style_image = load_style_image(style)  # first: a bad painting should not cost a scene load
     gaussians = read_ply(model)
+    ckpt_path = out / CHECKPOINT_NAME
+    fingerprint = stylize_fingerprint(model, data, style, config, mask)
+    state = None
+    if resume:
+        state = load_stylize_checkpoint(ckpt_path)
+        try:
+            warning = check_same_inputs(state.get("fingerprint"), fingerprint, ckpt_path)
+        except InputsChanged as exc:
+            if not force:
+                raise
+            say(f"stylize: {ckpt_path}: made from other inputs ({exc.difference}): starting afresh (--force)")
+            state, warning = None, None
+        if warning:
+            warn(warning)
     scene = load_scene(data, downscale=choose_downscale(data, config.render_max_side))
     t_loaded = time.perf_counter()
 
     stylizer = Stylizer(gaussians, scene, style_image, config, vgg_weights=vgg_weights, model_name=model, mask=mask)
-    t0 = time.perf_counter()
-    distance_start = stylizer.style_distance(sh=stylizer.original_sh)
-    distance_pre = stylizer.style_distance() if stylizer.pre_transform is not None else distance_start
-    stylizer.times.add("style_distance", time.perf_counter() - t0)
+    saved = state["pipeline"] if state is not None else {}
+    if "distance_start" in saved:
+        distance_start, distance_pre = saved["distance_start"], saved["distance_pre"]
+    else:  # before the first step (or a checkpoint the viewer wrote: measured before its state is loaded)
+        t0 = time.perf_counter()
+        distance_start = stylizer.style_distance(sh=stylizer.original_sh)
+        distance_pre = stylizer.style_distance() if stylizer.pre_transform is not None else distance_start
+        stylizer.times.add("style_distance", time.perf_counter() - t0)
+    if state is not None:
+        stylizer.load_state(state["trainer"])
+    earlier = {"stylize_loop": saved.get("stylize_seconds", 0.0), "total": saved.get("total_seconds", 0.0)}
     if listener is not None:
         stylizer.add_listener(listener)
     if log is not None:
         passes = stylizer.pass_progress()[1]
+        where = "" if state is None else (f"; resuming from {ckpt_path} at iteration {stylizer.iteration}"
+                                          + (", stylization finished" if stylizer.finished else ""))
         log(f"stylize: {len(scene.cameras)} views ({stylizer.kind}), {len(stylizer.trajectory)} in the "
               f"trajectory, {stylizer.total_iters} iterations ({config.schedule}: {passes} "
               f"pass{'es' if passes != 1 else ''} along the trajectory) at "
               f"{stylizer.cameras[0].width}x{stylizer.cameras[0].height}; VGG weights: "
-              f"{getattr(stylizer.vgg, 'weights_source', 'given')}")
+              f"{getattr(stylizer.vgg, 'weights_source', 'given')}{where}")
     t0 = time.perf_counter()
-    try:
-        stylizer.run()
-    except KeyboardInterrupt:  # Ctrl-C or SIGTERM: keep what was stylized so far
+
+    def loop_seconds() -> float:
+        return earlier["stylize_loop"] + (time.perf_counter() - t0)
+
+    def keep() -> None:
+        """The model and the state to resume from, as they are now."""
         make_output_dir(out)
         write_ply(out / "point_cloud.ply", stylizer.stylized_gaussians())
-        if log is not None:
-            log(f"stylize: stopped at iteration {stylizer.iteration}; the model so far is in "
-                f"{out / 'point_cloud.ply'}")
+        save_stylize_checkpoint(ckpt_path, stylizer, fingerprint, {
+            "distance_start": distance_start, "distance_pre": distance_pre,
+            "stylize_seconds": loop_seconds() if stylize_seconds is None else stylize_seconds,
+            "total_seconds": earlier["total"] + (time.perf_counter() - t_start)})
+
+    start_iteration = stylizer.iteration
+    stylize_seconds = None
+    try:
+        if stylizer.finished and not stylizer.done:  # more iterations asked for than the finished run had
+            stylizer.finished = False
+        if not stylizer.finished:
+            stylizer.run()
+            stylize_seconds = loop_seconds()
+            stylizer.finish()
+            keep()  # before the metrics and the renders, which an interrupt may cut short
+    except KeyboardInterrupt:  # Ctrl-C or SIGTERM: keep what was stylized so far
+        if stylizer.iteration > start_iteration or state is not None:
+            keep()
+            say(f"stylize: stopped at iteration {stylizer.iteration}; the model so far is in "
+                f"{out / 'point_cloud.ply'} (continue with --resume)")
         raise
+    if stylize_seconds is None:  # resumed after the stylization had finished
+        stylize_seconds = earlier["stylize_loop"]
     first = stylizer.history[0] if stylizer.history else None
-    stylize_seconds = time.perf_counter() - t0
     utilisation = stylizer.utilisation()
-    stylizer.finish()
     t0 = time.perf_counter()
     distance_end = stylizer.style_distance()
     stylizer.times.add("style_distance", time.perf_counter() - t0)
@@ -99,7 +158,6 @@ def stylize_to_folder(model: Path, data: Path, style: Path, out: Path, config: S
     t0 = time.perf_counter()
     renders = stylizer.render_views()
     make_output_dir(out)
-    write_ply(out / "point_cloud.ply", stylizer.stylized_gaussians())
     render_names = []
     for pos, ((img, _), cam) in enumerate(zip(renders, stylizer.cameras)):
         name = f"{pos:03d}_{Path(cam.name).stem}.png"
@@ -148,13 +206,16 @@ def stylize_to_folder(model: Path, data: Path, style: Path, out: Path, config: S
         },
         "iterations_per_second": stylizer.iteration / stylize_seconds if stylize_seconds > 0 else None,
         "time_s": {"load_inputs": t_loaded - t_start, **stylizer.times.totals,
-                   "stylize_loop": stylize_seconds, "total": time.perf_counter() - t_start},
+                   "stylize_loop": stylize_seconds, "total": earlier["total"] + time.perf_counter() - t_start},
         "renders": render_names,
         "contact_sheet": CONTACT_SHEET,
+        "fingerprint": fingerprint,
+        "resumed_at_iteration": None if state is None else start_iteration,
     }
     with atomic_open(out / "report.json", "w") as f:
         json.dump(_jsonable(report), f, indent=2)
         f.write("\n")
+    ckpt_path.unlink(missing_ok=True)  # the run is whole: nothing left to resume, and checkpoints are large
     return report
 
 

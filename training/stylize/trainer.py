@@ -634,6 +634,73 @@ class Stylizer(LiveTrainer):
     def config_dict(self) -> dict[str, Any]:
         return asdict(replace(self.config))
 
+    # ------------------------------------------------------------------ checkpoints (training/stylize/checkpoint.py)
+    def state_dict(self) -> dict[str, Any]:
+        """What a resumed run needs beyond its inputs: the place in the schedule, the colours (and under "all" the
+        geometry), the optimiser's moments, the CCFT guide carried from step to step, the losses so far, and
+        whether the post colour transfer was applied. Tensors on the CPU; plain values otherwise."""
+        with self._model_lock:
+            g = self.gaussians.detached().to("cpu")
+            optimizer = None if self._optimizer is None else self._optimizer.state_dict()
+        names = ("sh0", "shN") + (GEOMETRY if self._trains_geometry else ())
+        guide = getattr(self.style_loss, "guide", None)
+        return {
+            "iteration": self.iteration, "position": self._position, "iters_on_view": self._iters_on_view,
+            "num_gaussians": len(g), "model": {k: getattr(g, k) for k in names},
+            "optimizer": optimizer, "dc_only": self._dc_only, "loss": self._loss_name,
+            "guide": None if guide is None else guide.detach().to("cpu"),
+            "guide_source": getattr(self.style_loss, "guide_source", None),
+            "agreements": list(self._agreements),
+            "history": [dict(h) for h in self.history],
+            "last_stats": {k: v for k, v in self.last_stats.items() if isinstance(v, (bool, int, float, str))},
+            "finished": self.finished,
+            "post_transform": None if self.post_transform is None else self.post_transform.to_dict(),
+            "times": dict(self.times.totals),
+        }
+
+    def load_state(self, state: dict[str, Any]) -> None:
+        """Continue from ``state_dict()`` of a run on the same inputs (this Stylizer built as that one was); the
+        live settings (loss, weights, learning rate) stay this config's. InputError when the model differs."""
+        if int(state["num_gaussians"]) != len(self.gaussians):
+            raise InputError(self.model_name, f"the checkpoint holds {state['num_gaussians']} Gaussians, this "
+                                              f"model {len(self.gaussians)}")
+        with self._model_lock:
+            for name, value in state["model"].items():
+                setattr(self.gaussians, name, value.to(self.device, getattr(self.gaussians, name).dtype))
+            self.iteration = int(state["iteration"])
+            self._position = int(state["position"])
+            self._iters_on_view = int(state["iters_on_view"])
+            self._content_cache.clear()
+            self.finished = bool(state["finished"])
+            if state["post_transform"] is not None:
+                t = state["post_transform"]
+                self.post_transform = ColorTransform(np.asarray(t["A"], dtype=np.float64),
+                                                     np.asarray(t["b"], dtype=np.float64))
+            if self.finished:
+                self._frozen = self.gaussians.detached()
+            self._optimizer = None
+            self._version += 1
+            if self._trains_geometry:
+                self._geometry_version += 1
+        self.history = [dict(h) for h in state["history"]]
+        self.last_stats = dict(state["last_stats"])
+        for name, seconds in state["times"].items():
+            self.times.add(name, float(seconds))
+        if state["loss"] is not None:
+            from training.stylize.style_losses import make_style_loss
+
+            self.style_loss, self._loss_name = make_style_loss(state["loss"]), state["loss"]
+            if state["guide"] is not None and hasattr(self.style_loss, "guide"):
+                self.style_loss.guide = state["guide"].to(self.device)
+                self.style_loss.guide_source = state.get("guide_source")
+        self._agreements = [float(a) for a in state.get("agreements", [])]
+        if state["optimizer"] is not None and state["dc_only"] == self.config.dc_only:
+            with self._model_lock:
+                self._make_optimizer()
+            saved = [group.get("name") for group in state["optimizer"]["param_groups"]]
+            if saved == [group["name"] for group in self._optimizer.param_groups]:
+                self._optimizer.load_state_dict(state["optimizer"])
+
 
 def _is_scalar(value: Any) -> bool:
     if isinstance(value, (int, float, bool, str)):
