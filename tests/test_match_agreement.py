@@ -62,3 +62,46 @@ def painting():
     from assets.demo.painting import make_style_image
 
     return np.asarray(make_style_image(size=128, seed=0), dtype=np.float32)
+
+
+FOX = __import__("pathlib").Path(__file__).resolve().parents[2] / "shared" / "data" / "scenes" / "fox"
+STARRY = FOX.parents[1] / "styles" / "starry_night.jpg"
+
+
+@pytest.mark.slow
+@pytest.mark.skipif(not FOX.is_dir(), reason="needs ../shared/data/scenes/fox")
+def test_guidance_raises_the_match_agreement_between_neighbouring_views(vgg):
+    """The paper's claim for cross-view guidance, on a real scene: 16 neighbouring fox cameras at 1/16 size, a short
+    reconstruction, then the interleaved schedule (a new view every step) stylized twice from the same model with
+    the same seed, guided (lambda_guide 1) and not (0). The guided plans assign the cells two consecutive views both
+    see to the same style feature more often. Measured (4 reconstruction seeds, load 4-14): guided 0.251-0.269,
+    unguided 0.212-0.223, differences +0.037 to +0.053; the margin asked for is 0.02."""
+    from dataclasses import replace
+
+    from training.reconstruct.trainer import ReconstructConfig, Reconstructor
+    from training.scene.loader import load_scene
+    from training.scene.scene import Scene
+    from training.stylize.style_image import load_style_image
+    from training.stylize.trainer import StylizeConfig, Stylizer
+    from training.stylize.view_order import nearest_order
+
+    full = load_scene(FOX, downscale=16)
+    pick = sorted(nearest_order(full.cameras, full.extent)[:16])
+    scene = Scene(cameras=[full.cameras[i] for i in pick], images=[full.images[i] for i in pick],
+                  points=full.points, point_colors=full.point_colors)
+    cfg = ReconstructConfig.from_preset("quick", depth="none", random_init_points=3000, seed=0)
+    cfg = replace(cfg, iterations=150, densify=replace(cfg.densify, start=40, interval=40, stop=140))
+    rec = Reconstructor(scene, cfg)
+    for _ in range(cfg.iterations):
+        rec.step()
+    model = rec.gaussians.detached()
+    style = load_style_image(STARRY)
+    agreement = {}
+    for guide in (1.0, 0.0):
+        s = Stylizer(model, scene, style, StylizeConfig(preset="quick", device="cpu", lambda_guide=guide,
+                                                        iters_per_view=2, seed=0), vgg=vgg)
+        assert s.config.schedule == "interleaved"
+        s.run()
+        agreement[guide] = s.step_agreement()
+        print(f"lambda_guide {guide:g}: step match agreement {agreement[guide]:.4f}")
+    assert agreement[1.0] > agreement[0.0] + 0.02

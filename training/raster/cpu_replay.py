@@ -25,7 +25,7 @@ from training.raster.cpu_jit import JIT
 
 MAX_PAIRS = 8_000_000  # per direction: at most ~100 MB of forward and ~100 MB of backward weights
 RECORD_BYTES = 12  # a recorded pair, in either direction
-# All entries together (measured: the fox's 67 views at 256 px with ~40k Gaussians take about ... MB).
+# All entries together: what is not kept is computed again at each visit (slower, never wrong).
 MAX_BYTES = 1 << 30
 
 
