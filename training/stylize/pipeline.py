@@ -44,7 +44,8 @@ def stylize_to_folder(model: Path, data: Path, style: Path, out: Path, config: S
     above this package)."""
     from training.core.atomic_write import atomic_open, check_output_dir, make_output_dir
     from training.scene.image_io import write_image
-    from training.model.ply_io import read_ply, write_ply
+    from training.model.model_io import read_model
+    from training.model.ply_io import write_ply
     from training.scene.loader import load_scene
     from training.stylize.style_image import load_style_image
 
@@ -54,7 +55,7 @@ def stylize_to_folder(model: Path, data: Path, style: Path, out: Path, config: S
         raise InputError(out, "output exists and is not a folder")
     check_output_dir(out)
     style_image = load_style_image(style)  # first: a bad painting should not cost a scene load
-    gaussians = read_ply(model)
+    gaussians = read_model(model)
     scene = load_scene(data, downscale=choose_downscale(data, config.render_max_side))
     t_loaded = time.perf_counter()
 
