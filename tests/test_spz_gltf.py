@@ -221,3 +221,23 @@ def test_glb_from_splat_transform_reads_back(tmp_path):
     # splat-transform turns rotations as R -> T R, we as T R T (the reference's flipQ): the same ellipsoids
     assert torch.allclose(covariances(back), covariances(want), rtol=1e-4, atol=1e-9)
     assert torch.equal(back.sh0, want.sh0) and torch.equal(back.shN, want.shN)
+
+
+@pytest.mark.parametrize("fmt,at_least", [("spz", 30.0), ("glb", 80.0)])
+def test_a_render_of_the_model_read_back_matches_the_original(tmp_path, fmt, at_least):
+    """What a user sees: the model written and read back renders as the original does (axes turned and turned back,
+    quantisation within what the eye tolerates; docs/editor.md has the fox's figures from `bench formats`)."""
+    from training.evaluate.measure import render_with_depth
+    from training.scene.scene import Camera
+
+    g = model(n=400, degree=3, seed=3)
+    g = Gaussians(**{**g.parameters(), "means": g.means * 0.3}, sh_degree=3)
+    w2c = np.eye(4)
+    w2c[:3, 3] = (0.1, -0.2, 3.0)
+    cam = Camera("c", 96, 72, 90.0, 90.0, 48.0, 36.0, w2c)
+    write_export(tmp_path / f"m.{fmt}", g)
+    before = render_with_depth(g, [cam], background=(1.0, 1.0, 1.0))[0][0]
+    after = render_with_depth(read_model(tmp_path / f"m.{fmt}"), [cam], background=(1.0, 1.0, 1.0))[0][0]
+    assert before.std() > 0.05
+    mse = float(np.mean((before.astype(np.float64) - after) ** 2))
+    assert 10 * np.log10(1 / max(mse, 1e-30)) >= at_least
