@@ -10,6 +10,7 @@ from pathlib import Path
 from imgui_bundle import imgui
 
 from training.model.export import FORMATS, SUFFIXES as SUFFIX
+
 GREY = imgui.ImVec4(0.6, 0.6, 0.6, 1.0)
 
 
