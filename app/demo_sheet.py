@@ -25,7 +25,7 @@ def render_model(model, camera) -> np.ndarray:
 def demo_contact_sheet(data: Path, reconstruction: Path, stylized: Path, painting: Path, out: Path,
                        views: int = SHEET_VIEWS) -> Path:
     """Write ``out`` (photo | reconstruction | stylized per row, the painting after the first row)."""
-    from training.model.ply_io import read_ply
+    from training.model.model_io import read_model
     from training.scene.image_grid import grid, shrink_to
     from training.scene.image_io import read_image, write_image
     from training.scene.loader import load_scene
@@ -33,7 +33,7 @@ def demo_contact_sheet(data: Path, reconstruction: Path, stylized: Path, paintin
     from training.stylize.pipeline import choose_downscale
 
     scene = load_scene(data, downscale=choose_downscale(data, CELL))
-    recon, styled = read_ply(reconstruction), read_ply(stylized)
+    recon, styled = read_model(reconstruction), read_model(stylized)
     n = len(scene.cameras)
     picks = sorted({round(k * (n - 1) / max(1, views - 1)) for k in range(min(views, n))})
     rows = []

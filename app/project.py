@@ -127,6 +127,8 @@ class Project:
 
     def open_model(self, ref: FileRef):
         """The Gaussians of a model file the project names (embedded ones from the project file)."""
+        from training.model.model_io import read_model
+
         if ref.embedded is not None and self.source is not None:
             import tempfile
 
@@ -138,16 +140,6 @@ class Project:
             raise InputError(ref.path, "model file not found")
         return read_model(ref.path)
 
-
-def read_model(path: Path):
-    """A .splat model by its name, anything else as a PLY (read_ply names the file if it is not one)."""
-    if Path(path).suffix.lower() == ".splat":
-        from training.model.splat_io import read_splat
-
-        return read_splat(path)
-    from training.model.ply_io import read_ply
-
-    return read_ply(path)
 
 
 def file_sha256(path: str | Path) -> str:

@@ -35,22 +35,9 @@ def parse_background(text: str) -> tuple[float, float, float]:
 
 
 def load_model_arrays(path: Path):
-    """(means, scales, quats, opacities, sh, sh_degree) as float32 numpy, activated, from a .ply or .splat."""
-    from app.commands.info import detect_kind
-    from training.core.errors import InputError
+    """(means, scales, quats, opacities, sh, sh_degree) as float32 numpy, activated, from any model file."""
+    from training.model.model_io import read_model
 
-    kind = detect_kind(path)
-    if kind == "ply":
-        from training.model.ply_io import read_ply
-
-        g = read_ply(path)
-    elif kind == "splat":
-        from training.model.splat_io import read_splat
-
-        g = read_splat(path)
-    else:
-        raise InputError(path, "is not a Gaussian model file (.ply or .splat)")
-    if len(g) == 0:
-        raise InputError(path, "holds no Gaussians")
+    g = read_model(path)
     arrays = [t.detach().float().cpu().numpy() for t in (g.means, g.scales, g.rotations, g.opacities, g.sh)]
     return (*arrays, g.sh_degree)

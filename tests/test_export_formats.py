@@ -116,7 +116,7 @@ def test_compressed_ply_decodes_to_the_model_within_quantisation(tmp_path, n, ba
         assert np.prod(span[:256 * (n // 256)], axis=1).max() < 0.5 * whole
 
 
-@pytest.mark.parametrize("fmt", ["ply", "compressed-ply", "splat"])
+@pytest.mark.parametrize("fmt", ["ply", "compressed-ply", "splat", "glb"])
 @pytest.mark.parametrize("bands", [0, 1, 2, 3])
 @pytest.mark.parametrize("n", [1, 255, 257, 1000])
 def test_export_size_is_the_written_size(tmp_path, fmt, bands, n):
@@ -126,9 +126,28 @@ def test_export_size_is_the_written_size(tmp_path, fmt, bands, n):
         return
     g = model(n=n)
     for pad in (True, False):
-        path = tmp_path / f"m.{'splat' if fmt == 'splat' else 'ply'}"
+        path = tmp_path / f"m.{'splat' if fmt == 'splat' else 'glb' if fmt == 'glb' else 'ply'}"
         write_export(path, g, fmt, bands, pad_sh=pad)
         assert path.stat().st_size == export_size(fmt, bands, n, pad_sh=pad), pad
+
+
+@pytest.mark.parametrize("bands", [0, 3])
+def test_compressed_ply_reads_back_as_the_independent_decoder_decodes_it(tmp_path, bands):
+    from training.model.model_io import read_model
+
+    g = model(n=700, degree=3)
+    write_export(tmp_path / "m.compressed.ply", g, sh_bands=bands)
+    pos, scl, q, opacity, rgb, f_rest = decode_compressed(tmp_path / "m.compressed.ply")
+    back = read_model(tmp_path / "m.compressed.ply")
+    assert back.sh_degree == bands and len(back) == 700
+    assert np.allclose(back.means.double().numpy(), pos, atol=1e-5)
+    assert np.allclose(back.log_scales.double().numpy(), scl, atol=1e-5)
+    assert np.allclose(torch.sigmoid(back.opacity_logits.double()).numpy(), opacity.clip(0.5 / 255, 1 - 0.5 / 255),
+                       atol=1e-6)
+    assert np.allclose(back.sh0[:, 0].double().numpy() * SH_C0 + 0.5, rgb, atol=1e-6)
+    assert np.allclose(torch.nn.functional.normalize(back.quats.double(), dim=1).numpy(), q, atol=1e-6)
+    if bands:
+        assert np.allclose(back.shN.double().numpy().transpose(0, 2, 1).reshape(700, -1), f_rest, atol=1e-6)
 
 
 def test_compact_ply_reads_back_with_its_bands_and_is_smaller(tmp_path):
@@ -157,7 +176,8 @@ def test_selection_export_holds_exactly_the_selected(tmp_path):
 def test_format_from_name():
     assert format_for_path("a/scene.compressed.ply") == "compressed-ply"
     assert format_for_path("scene.PLY") == "ply" and format_for_path("x.splat") == "splat"
-    assert format_for_path("x.spz") is None
+    assert format_for_path("x.spz") == "spz" and format_for_path("x.GLB") == "glb"
+    assert format_for_path("x.ksplat") is None and format_for_path("x.gltf") is None
 
 
 def test_cli_dry_run_box_and_formats(tmp_path, capsys):

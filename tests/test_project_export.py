@@ -15,6 +15,7 @@ from app.cli import main
 from app.project import FileRef, ModelEntry, Project, save_project
 from training.model.colour_edit import ColourAdjustment, ColourEdits, adjust_sh, blend_style
 from training.model.gaussians import Gaussians
+from training.model.model_io import read_model
 from training.model.ply_io import read_ply, write_ply
 from training.model.rotation import quat_to_rotmat
 from training.model.sh import sh_basis
@@ -143,6 +144,11 @@ def test_other_formats_and_hidden_gaussians(tmp_path, capsys):
     assert len(read_splat(tmp_path / "o.splat")) == len(h["kept"]) - 10
     code, _, err = export(capsys, "export", "--project", path, "-o", tmp_path / "o.compressed.ply")
     assert code == 0, err
+    for name, extra in (("o.spz", ["--spz-version", "3"]), ("o.glb", [])):
+        code, _, err = export(capsys, "export", "--project", path, "-o", tmp_path / name, "--without-hidden", *extra)
+        assert code == 0, err
+        assert len(read_model(tmp_path / name)) == len(h["kept"]) - 10
+    assert (tmp_path / "o.spz").read_bytes()[:2] == b"\x1f\x8b"  # version 3: gzip
     code, _, err = export(capsys, "export", tmp_path / "photo.ply", "--project", path, "-o", tmp_path / "x.ply")
     assert code == 2 and "give a model file IN or --project P" in err
 

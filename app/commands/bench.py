@@ -19,6 +19,7 @@ BENCHES: dict[str, tuple[str, str]] = {
     "stylize": ("app.bench.stylize", "stylization iterations/s with a per-stage breakdown (rasterize, VGG, top-K, Sinkhorn, backward)"),
     "edits": ("app.bench.edits", "colour edits, style strength, transforms and project files at 100k-1M Gaussians vs a copy of the SH"),
     "viewer": ("app.bench.viewer", "renderer_gl frame, sort and upload times at 10k-1M splats vs the CPU rasterizer's forward pass"),
+    "formats": ("app.bench.formats", "each model file format's bytes and write/read time beside PLY's (1M random Gaussians or --model), and with --data the PSNR of renders read back"),
     "gpu": ("app.bench.gpu", "on an NVIDIA GPU: cuda parity tests, raster and viewer benches, reconstruct and stylize (paper presets); writes OUT/bench_gpu.json and .md"),
 }
 

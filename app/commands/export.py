@@ -1,11 +1,16 @@
-"""``splatstyler export IN -o OUT``: write a Gaussian model (or a selection of it) as PLY, compressed PLY or .splat.
+"""``splatstyler export IN -o OUT``: write a Gaussian model (or a selection of it) as PLY, compressed PLY, .splat,
+SPZ or glTF.
 
-IN is a 3DGS PLY (or a .splat file). OUT's name picks the format (``--format`` overrides it): ``*.compressed.ply``
-(PlayCanvas's chunked compressed PLY, which SuperSplat and the PlayCanvas engine load: 16 bytes per Gaussian plus
-3 per SH coefficient kept), ``*.ply`` (standard 3DGS layout; all 45 f_rest, zero-padded, unless ``--compact-sh``),
-``*.splat`` (web viewers; colour from the SH DC term only). ``--sh-bands B`` keeps SH bands 0..B. A selection
-(``--mask FILE``, ``--box``, ``--sphere``, with ``--invert``) writes only those Gaussians. The size of the file is
-printed before it is written; ``--dry-run`` prints it and writes nothing.
+IN is any model file ``read_model`` reads (.ply, .compressed.ply, .splat, .spz, .glb). OUT's name picks the format
+(``--format`` overrides it): ``*.compressed.ply`` (PlayCanvas's chunked compressed PLY, which SuperSplat and the
+PlayCanvas engine load: 16 bytes per Gaussian plus 3 per SH coefficient kept), ``*.ply`` (standard 3DGS layout;
+all 45 f_rest, zero-padded, unless ``--compact-sh``), ``*.splat`` (web viewers; colour from the SH DC term only),
+``*.spz`` (Niantic's SPZ, about a tenth of a PLY with SH kept; ``--spz-version 4`` (default, the current spec, ZSTD)
+or ``3`` (gzip) for older readers), ``*.glb`` (glTF 2.0 with KHR_gaussian_splatting, float32). SPZ and glTF store
+right-up-back axes as their specs say; the model's right-down-forward (graphdeco's PLY) axes are turned on the way.
+``--sh-bands B`` keeps SH bands 0..B. A selection (``--mask FILE``, ``--box``, ``--sphere``, with ``--invert``)
+writes only those Gaussians. The size of the file is printed before it is written (SPZ: once compressed);
+``--dry-run`` prints it and writes nothing.
 
 ``--project P`` (instead of IN) bakes a project file (``*.splatproj``, app/project.py) with no display: its models'
 kept rows, transforms, the scene's up axis and scale, colour adjustments and style strength, merged into one
@@ -18,26 +23,27 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-OUTPUT_FORMATS = (".splat", ".ply")
-
-
 def register(sub: argparse._SubParsersAction) -> None:
     parser = sub.add_parser(
         "export",
-        help="write a model (or a selection) as PLY, compressed PLY or .splat, with a choice of SH bands",
+        help="write a model (or a selection) as PLY, compressed PLY, .splat, SPZ or glTF (.glb), with a "
+             "choice of SH bands",
         description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter,
     )
     parser.add_argument("input", type=Path, metavar="IN", nargs="?", default=None,
-                        help="3DGS .ply (or .splat) file (or --project)")
+                        help="model file: .ply, .compressed.ply, .splat, .spz or .glb (or --project)")
     parser.add_argument("--project", type=Path, default=None, metavar="P",
                         help="bake this project file (.splatproj) instead: its edits, transforms, colour "
                              "adjustments and style strength applied, its models merged")
     parser.add_argument("--without-hidden", action="store_true",
                         help="with --project: leave out the Gaussians hidden in the project")
     parser.add_argument("-o", "--output", type=Path, required=True, metavar="OUT",
-                        help="output file: .ply, .compressed.ply or .splat (written atomically)")
-    parser.add_argument("--format", choices=("ply", "compressed-ply", "splat"), default=None,
+                        help="output file: .ply, .compressed.ply, .splat, .spz or .glb (written atomically)")
+    parser.add_argument("--format", choices=("ply", "compressed-ply", "splat", "spz", "glb"), default=None,
                         help="output format (default: from OUT's name)")
+    parser.add_argument("--spz-version", type=int, choices=(3, 4), default=None, metavar="3|4",
+                        help="SPZ: 4 (default, the current spec: ZSTD streams) or 3 (one gzip stream, for older "
+                             "readers)")
     parser.add_argument("--sh-bands", "--sh-degree", dest="sh_degree", type=int, choices=range(4), default=None,
                         metavar="B", help="keep SH bands up to B (0..3, at most the input's); default: all the "
                                           "input and the format hold")
@@ -56,23 +62,6 @@ def register(sub: argparse._SubParsersAction) -> None:
     parser.add_argument("--dry-run", action="store_true", help="print what would be written and its size; write "
                                                                "nothing")
     parser.set_defaults(func=run)
-
-
-def read_model(path: Path):
-    """A .ply or .splat model; InputError for anything else."""
-    from app.commands.info import detect_kind
-    from training.core.errors import InputError
-
-    kind = detect_kind(path)
-    if kind == "ply":
-        from training.model.ply_io import read_ply
-
-        return read_ply(path)
-    if kind == "splat":
-        from training.model.splat_io import read_splat
-
-        return read_splat(path)
-    raise InputError(path, "is not a Gaussian model file (.ply or .splat)")
 
 
 def selection_mask(args: argparse.Namespace, means):
@@ -117,15 +106,18 @@ def baked_project(path: Path, drop_hidden: bool):
 
 def run(args: argparse.Namespace) -> int:
     from training.core.errors import InputError
-    from training.model.export import FORMAT_NAMES, export_size, format_for_path, human_size, write_export
+    from training.model.export import (FORMAT_NAMES, SUFFIX_LIST, export_size, format_for_path, human_size,
+                                       max_sh_bands, write_export)
+    from training.model.model_io import read_model
 
     fmt = args.format or format_for_path(args.output)
     if fmt is None:
-        raise InputError(args.output, f"unknown output format '{args.output.suffix}'; use .ply, .compressed.ply or "
-                                      ".splat (or --format)")
+        raise InputError(args.output, f"unknown output format '{args.output.suffix}'; use {SUFFIX_LIST} (or "
+                                      "--format)")
     if args.output.is_dir():
-        raise InputError(args.output, "is a folder; give an output file name ending in .ply, .compressed.ply or "
-                                      ".splat")
+        raise InputError(args.output, f"is a folder; give an output file name ending in {SUFFIX_LIST}")
+    if args.spz_version is not None and fmt != "spz":
+        raise InputError(None, f"--spz-version applies to SPZ output, not {FORMAT_NAMES[fmt]}")
     if (args.input is None) == (args.project is None):
         raise InputError(None, "give a model file IN or --project P (one of them)")
     if args.without_hidden and args.project is None:
@@ -134,24 +126,27 @@ def run(args: argparse.Namespace) -> int:
     g = read_model(args.input) if args.project is None else baked_project(args.project, args.without_hidden)
     if args.sh_degree is not None:
         if fmt == "splat" and args.sh_degree > 0:
-            raise InputError(None, "--sh-bands above 0 needs PLY output (.splat holds no SH beyond the colour)")
+            raise InputError(None, "--sh-bands above 0 needs a format that holds SH (.splat keeps only the colour)")
         if args.sh_degree > g.sh_degree:
             raise InputError(source, f"holds SH degree {g.sh_degree}; --sh-bands {args.sh_degree} cannot "
                                          "add degrees")
-    bands = min(g.sh_degree, 0 if fmt == "splat" else 3) if args.sh_degree is None else args.sh_degree
+    bands = min(g.sh_degree, max_sh_bands(fmt)) if args.sh_degree is None else args.sh_degree
     mask = selection_mask(args, g.means.numpy())
     count = len(g) if mask is None else int(mask.sum())
     if count == 0:
         raise InputError(None, f"the selection holds none of the model's {len(g)} Gaussians: nothing to export")
     size = export_size(fmt, bands, count, pad_sh=not args.compact_sh)
     what = f"{count} of {len(g)} Gaussians" if mask is not None else f"{count} Gaussians"
-    line = (f"{args.output}: {FORMAT_NAMES[fmt]}, {what}, SH bands {bands}, {human_size(size)} ({size} bytes, "
-            f"{size / count:.1f} per Gaussian)")
+    name = FORMAT_NAMES[fmt] + (f" version {args.spz_version or 4}" if fmt == "spz" else "")
+    sized = ("size known once compressed" if size is None
+             else f"{human_size(size)} ({size} bytes, {size / count:.1f} per Gaussian)")
+    line = f"{args.output}: {name}, {what}, SH bands {bands}, {sized}"
     if args.dry_run:
         print(f"would write {line}")
         return 0
     print(f"writing {line}", flush=True)
-    write_export(args.output, g, fmt, bands, mask, pad_sh=not args.compact_sh)
+    result = write_export(args.output, g, fmt, bands, mask, pad_sh=not args.compact_sh, spz_version=args.spz_version)
     print(f"wrote {args.output} ({count} Gaussians, "
-          + ("SH degree 0 colour only" if fmt == "splat" else f"SH degree {bands}") + ")")
+          + ("SH degree 0 colour only" if fmt == "splat" else f"SH degree {bands}")
+          + (f", {human_size(result.size)}, {result.size / count:.1f} bytes per Gaussian)" if size is None else ")"))
     return 0

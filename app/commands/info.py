@@ -1,11 +1,13 @@
-"""``splatstyler info PATH [--json]``: what a scene folder, a Gaussian PLY or a .splat file holds.
+"""``splatstyler info PATH [--json]``: what a scene folder or a Gaussian model file holds.
 
 A scene (a COLMAP folder, a folder with transforms.json, or the json file itself) is read through the scene loader
-without decoding its images: cameras, image sizes, train/test split, SfM points, normalisation. A PLY or .splat
-file is read fully (and so validated): Gaussian count, SH degree, bounds, opacity and scale statistics.
+without decoding its images: cameras, image sizes, train/test split, SfM points, normalisation. A model file (.ply,
+.compressed.ply, .splat, .spz, .glb; training/model/model_io.py) is read fully (and so validated): Gaussian count,
+SH degree, bounds, opacity and scale statistics.
 
-``--json`` prints one object. Its keys always include ``kind`` ("scene" | "ply" | "splat"), ``path``,
-``num_cameras``, ``num_points``, ``num_gaussians`` and ``sh_degree``; those that do not apply to the kind are null.
+``--json`` prints one object. Its keys always include ``kind`` ("scene" | "ply" | "compressed-ply" | "splat" |
+"spz" | "glb"), ``path``, ``num_cameras``, ``num_points``, ``num_gaussians`` and ``sh_degree``; those that do not
+apply to the kind are null.
 """
 
 from __future__ import annotations
@@ -18,11 +20,12 @@ from pathlib import Path
 def register(sub: argparse._SubParsersAction) -> None:
     parser = sub.add_parser(
         "info",
-        help="summarise a scene folder, a Gaussian PLY or a .splat file",
-        description="Summarise a scene (COLMAP folder, transforms.json folder or file), a 3DGS PLY, or a .splat "
-                    "file. Reading it also validates it: a broken file gives a one-line error.",
+        help="summarise a scene folder or a Gaussian model file (.ply, .compressed.ply, .splat, .spz, .glb)",
+        description="Summarise a scene (COLMAP folder, transforms.json folder or file) or a Gaussian model file "
+                    "(.ply, .compressed.ply, .splat, .spz, .glb). Reading it also validates it: a broken file gives "
+                    "a one-line error.",
     )
-    parser.add_argument("path", type=Path, help="scene folder, transforms.json, .ply or .splat file")
+    parser.add_argument("path", type=Path, help="scene folder, transforms.json, or model file")
     parser.add_argument("--json", action="store_true", help="print one JSON object instead of text")
     parser.add_argument("--downscale", type=int, default=1, metavar="N",
                         help="scenes: report image sizes and intrinsics as loaded with --downscale N (default 1)")
@@ -30,21 +33,15 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 
 def detect_kind(path: Path) -> str:
-    """"ply" for a file that starts like a PLY, "splat" for a *.splat file, "scene" for anything else."""
-    from training.core.errors import InputError
+    """A model file's format by read_model's rule (training/model/model_io.py), "scene" for anything else; a file
+    named like a model that is none gets read_model's error."""
+    from training.model.model_io import checked_format, has_model_suffix, model_format
 
-    if not path.exists():
-        raise InputError(path, "does not exist")
-    if path.is_file():
-        with open(path, "rb") as f:
-            if f.read(4) in (b"ply\n", b"ply\r"):
-                return "ply"
-        if path.suffix.lower() == ".splat":
-            return "splat"
-        if path.suffix.lower() == ".ply":
-            from training.model.ply_io import read_ply
-
-            read_ply(path)  # raises the precise "not a PLY file" error
+    fmt = model_format(path)
+    if fmt is not None:
+        return fmt
+    if path.is_file() and has_model_suffix(path):
+        checked_format(path)  # raises the precise "not an SPZ file" error
     return "scene"
 
 
@@ -74,17 +71,12 @@ def _stats(values, names=("min", "mean", "median", "max")) -> dict[str, float]:
 
 
 def gaussians_file_summary(path: Path, kind: str) -> dict:
-    """Summary of a .ply ("ply") or .splat ("splat") Gaussian file."""
+    """Summary of a Gaussian model file of format ``kind``."""
     import torch
 
-    if kind == "ply":
-        from training.model.ply_io import read_ply
+    from training.model.model_io import read_model
 
-        g = read_ply(path)
-    else:
-        from training.model.splat_io import read_splat
-
-        g = read_splat(path)
+    g = read_model(path)
     with torch.no_grad():
         means = g.means.double().numpy()
         scales = g.scales.double().numpy()

@@ -22,7 +22,8 @@ def register(sub: argparse._SubParsersAction) -> None:
         description="Render a Gaussian model from a dataset camera or an orbit, headless, through the viewer's "
                     "OpenGL renderer.",
     )
-    parser.add_argument("model", type=Path, metavar="MODEL", help="3DGS .ply (or .splat) file")
+    parser.add_argument("model", type=Path, metavar="MODEL",
+                        help="model file: .ply, .compressed.ply, .splat, .spz or .glb")
     parser.add_argument("--data", type=Path, default=None, help="scene folder whose cameras to use")
     which = parser.add_mutually_exclusive_group(required=True)
     which.add_argument("--camera", default=None, metavar="N",

@@ -197,10 +197,10 @@ def selection_from_args(args: argparse.Namespace):
         if args.invert:
             raise InputError(None, "--invert needs --mask, --box or --sphere")
         return None
-    from training.model.ply_io import read_ply
+    from training.model.model_io import read_model
     from training.model.selection import box_mask, load_mask, parse_floats, sphere_mask
 
-    means = read_ply(args.model).means.numpy()
+    means = read_model(args.model).means.numpy()
     if args.mask is not None:
         mask = load_mask(args.mask, len(means))
         how = f"--mask {args.mask}"

@@ -21,7 +21,8 @@ def register(sub: argparse._SubParsersAction) -> None:
     parser = sub.add_parser("video", help="render a camera path (keyframes, orbit, dataset) to MP4 or PNG frames, "
                                           "headless", description=__doc__,
                             formatter_class=argparse.RawDescriptionHelpFormatter)
-    parser.add_argument("model", type=Path, metavar="MODEL", help="3DGS .ply (or .splat) file")
+    parser.add_argument("model", type=Path, metavar="MODEL",
+                        help="model file: .ply, .compressed.ply, .splat, .spz or .glb")
     which = parser.add_mutually_exclusive_group(required=True)
     which.add_argument("--path", type=Path, default=None, metavar="PATH.json", help="camera path file")
     which.add_argument("--orbit", action="store_true", help="a loop around the model")

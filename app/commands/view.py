@@ -1,9 +1,9 @@
 """``splatstyler view [MODEL] [--data DATA] [--style PAINTING]``: the live viewer.
 
-Opens a window with the model (a 3DGS PLY or .splat), the dataset's cameras and the painting; from its panels a
-reconstruction or a stylization runs live beside the view, with sliders for the stylization's settings.
-``--run`` starts one at once. In the Edit panel a gizmo (keys G, T, Y) moves, turns and scales the selection, the
-crop box or one model of the scene; File > Add model (or a .ply dropped on the window while a model is open) joins
+Opens a window with the model (a 3DGS PLY, compressed PLY, .splat, .spz or .glb), the dataset's cameras and the
+painting; from its panels a reconstruction or a stylization runs live beside the view, with sliders for the
+stylization's settings. ``--run`` starts one at once. In the Edit panel a gizmo (keys G, T, Y) moves, turns and scales the selection, the
+crop box or one model of the scene; File > Add model (or a model file dropped on the window while a model is open) joins
 another model to the scene, to align by the gizmo or by three point pairs and export as one file. Closing the window (or Ctrl-C) stops the trainer and saves: a reconstruction's
 checkpoint and PLY, a stylization's current model, under the output folder.
 
@@ -25,7 +25,8 @@ def register(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser("view", help="open the live viewer (watch and steer reconstruction and stylization)",
                        description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("model", nargs="?", default="", metavar="MODEL",
-                   help="a Gaussian model (.ply or .splat), or a project (.splatproj) saved from the viewer")
+                   help="a Gaussian model (.ply, .compressed.ply, .splat, .spz, .glb), or a project (.splatproj) "
+                        "saved from the viewer")
     p.add_argument("--data", default="", help="the scene (COLMAP folder or transforms.json): cameras, photos")
     p.add_argument("--style", default="", help="the painting to stylize after")
     p.add_argument("-o", "--output", default="viewer_out", help="where runs and exports are written "
@@ -45,15 +46,15 @@ def check_arguments(args: argparse.Namespace) -> None:
     file, or for a --run that lacks what it needs."""
     from pathlib import Path
 
-    from app.commands.info import detect_kind
     from training.core.errors import InputError
+    from training.model.model_io import checked_format
 
     if args.model.lower().endswith(".splatproj"):
         from app.project import open_project
 
         open_project(args.model, check_hashes=False)  # not a project: one line; moved files are said in the window
-    elif args.model and detect_kind(Path(args.model)) == "scene":
-        raise InputError(args.model, "is not a Gaussian model file (.ply or .splat)")
+    elif args.model:
+        checked_format(Path(args.model))
     if args.data:
         from training.scene.loader import load_scene
 

@@ -22,7 +22,7 @@ from app.evaluate.grid import Job, job_dir
 from training.core.atomic_write import atomic_open
 from training.evaluate.colour_shift import colour_shift
 from training.evaluate.measure import METRICS_VERSION
-from training.model.ply_io import read_ply
+from training.model.model_io import read_model
 
 RECON_CHECKPOINT_EVERY = 250
 
@@ -226,6 +226,6 @@ def _cell(job: Job, out: Path, log_path: Path) -> dict[str, Any]:
     for key in ("test_psnr", "test_ssim", "num_gaussians", "aniso_p95", "smax_p95"):
         metrics[f"recon_{key}"] = recon_report.get(key)
     if spec["method"] != "2d" and (folder / "point_cloud.ply").is_file():
-        metrics.update(colour_shift(read_ply(recon / "point_cloud.ply"), read_ply(folder / "point_cloud.ply")))
+        metrics.update(colour_shift(read_model(recon / "point_cloud.ply"), read_model(folder / "point_cloud.ply")))
     return {"metrics": metrics, "metrics_version": report.get("metrics_version"), "renders": report.get("renders", []),
             "folder": str(folder)}

@@ -11,7 +11,7 @@ def prepared_stylizer(model: Path, data: Path, painting: Path, flags: list[str])
     FLAGS` run starts from (cameras at the stylization size, trajectory order, pre colour transfer), not stepped."""
     from app.cli import build_parser
     from app.commands.stylize import config_from_args
-    from training.model.ply_io import read_ply
+    from training.model.model_io import read_model
     from training.scene.loader import load_scene
     from training.stylize.pipeline import choose_downscale
     from training.stylize.style_image import load_style_image
@@ -21,7 +21,7 @@ def prepared_stylizer(model: Path, data: Path, painting: Path, flags: list[str])
                                       "-o", "unused", *flags])
     config = config_from_args(args)
     scene = load_scene(data, downscale=choose_downscale(data, config.render_max_side))
-    stylizer = Stylizer(read_ply(model), scene, load_style_image(painting), config, vgg_weights=args.vgg_weights,
+    stylizer = Stylizer(read_model(model), scene, load_style_image(painting), config, vgg_weights=args.vgg_weights,
                         model_name=model)
     return stylizer, args
 
@@ -31,11 +31,11 @@ def remeasure(stylized_ply: Path, input_ply: Path, data: Path, painting: Path, f
     stylizer is prepared as the run was, its model replaced by the saved one, and measured as the stylize command
     measures."""
     from training.evaluate.measure import measure_stylizer
-    from training.model.ply_io import read_ply
+    from training.model.model_io import read_model
 
     stylizer, args = prepared_stylizer(input_ply, data, painting, flags)
-    original = read_ply(input_ply)
-    stylized = read_ply(stylized_ply)
+    original = read_model(input_ply)
+    stylized = read_model(stylized_ply)
     if len(stylized) != len(original):
         raise ValueError(f"{stylized_ply} has {len(stylized)} Gaussians, its input {input_ply} {len(original)}")
     stylizer.gaussians = stylized.to(stylizer.device)

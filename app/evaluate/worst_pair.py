@@ -59,10 +59,10 @@ def cell_views(data: Path, painting: Path, flags: Sequence[str]) -> CellViews:
 def render_pair_views(model: Path, views: CellViews) -> dict[int, tuple[np.ndarray, np.ndarray, np.ndarray]]:
     """{camera index: (image, expected depth, alpha)} of the saved model at every camera some pair uses."""
     from training.evaluate.measure import render_with_depth
-    from training.model.ply_io import read_ply
+    from training.model.model_io import read_model
 
     used = sorted({i for pair in views.pairs for i in pair})
-    images, depths, alphas = render_with_depth(read_ply(model), [views.cameras[i] for i in used], views.background,
+    images, depths, alphas = render_with_depth(read_model(model), [views.cameras[i] for i in used], views.background,
                                                views.backend, views.device)
     return {i: (im, d, a) for i, im, d, a in zip(used, images, depths, alphas)}
 

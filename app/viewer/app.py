@@ -134,8 +134,7 @@ class ViewerApp(RunsMixin):
 
     # ------------------------------------------------------------------ loading (UI thread, user actions)
     def open_model(self, path: str) -> None:
-        from training.model.ply_io import read_ply
-        from training.model.splat_io import read_splat
+        from training.model.model_io import read_model
 
         p = Path(path)
         from app.viewer.selection import Editor
@@ -143,7 +142,7 @@ class ViewerApp(RunsMixin):
         if self.session.running:
             # the view shows the run's model at every refresh: an opened file would be drawn over at once
             raise ValueError("a run is going: stop it (Training panel) before opening another model")
-        g = read_splat(p) if p.suffix.lower() == ".splat" else read_ply(p)
+        g = read_model(p)
         # an ended run's model was on screen until now: from here on the view shows (and edits) the opened file
         self.session.release()
         self.original = None
@@ -180,17 +179,19 @@ class ViewerApp(RunsMixin):
         self.say(f"opened {path} ({len(scene.cameras)} cameras)")
 
     def open_dropped(self, path: str) -> None:
-        """A file or folder dropped on the window: a .ply/.splat opens as the model, an image as the painting, a
-        folder or transforms.json as the dataset."""
+        """A file or folder dropped on the window: a model file (.ply, .splat, .spz, .glb) opens as the model, an
+        image as the painting, a folder or transforms.json as the dataset."""
+        from training.model.model_io import has_model_suffix
+
         p = Path(path)
         suffix = p.suffix.lower()
-        if suffix in (".ply", ".splat") and self.source_gaussians is not None:
+        if has_model_suffix(p) and self.source_gaussians is not None:
             # joined, not replacing: a drop beside an open model is most often a part of the same scene, and
             # Ctrl+Z takes it out again, while a replaced model's edits would be gone (File > Open model replaces)
             from app.viewer.gizmo import add_to_scene
 
             add_to_scene(self, path)
-        elif suffix in (".ply", ".splat"):
+        elif has_model_suffix(p):
             self.open_model(path)
         elif suffix == ".splatproj":
             self.open_project(path)
@@ -201,8 +202,8 @@ class ViewerApp(RunsMixin):
         else:
             from training.core.errors import InputError
 
-            raise InputError(path, "not a model (.ply, .splat), a painting (an image) or a dataset (a folder or "
-                                   "transforms.json)")
+            raise InputError(path, "not a model (.ply, .splat, .spz, .glb), a painting (an image) or a dataset (a "
+                                   "folder or transforms.json)")
 
     def on_drop(self, _window, paths) -> None:
         """GLFW's drop callback (during its event polling): queued, opened at the next frame."""
@@ -659,8 +660,9 @@ class ViewerApp(RunsMixin):
     def open_from_dialog(self, what: str) -> None:
         """File menu: a file dialog (where a dialog program exists) for the model, dataset or painting."""
         from app.viewer.scene_panel import choose_file
+        from training.model.model_io import FILE_DIALOG_PATTERN
 
-        actions = {"model": (self.open_model, ["Gaussians", "*.ply *.splat"]),
+        actions = {"model": (self.open_model, ["Gaussians", FILE_DIALOG_PATTERN]),
                    "data": (self.open_data, ["Scenes", "transforms.json cameras.bin images.bin"]),
                    "style": (self.open_style, ["Images", "*.jpg *.jpeg *.png *.exr *.tif"]),
                    "project": (self.open_project, ["Projects", "*.splatproj"])}

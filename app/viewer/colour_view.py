@@ -179,15 +179,14 @@ def strength_problem(app) -> str | None:
 def pair_original(app, path: str) -> None:
     """Read ``path`` as the opened model's original: same rows (count) and SH degree, else one line."""
     from training.core.errors import InputError
-    from training.model.ply_io import read_ply
-    from training.model.splat_io import read_splat
+    from training.model.model_io import read_model
 
     if app.source_gaussians is None:
         raise ValueError("open the stylized model first")
     p = Path(path)
     if not p.is_file():
         raise InputError(p, "file does not exist")
-    g = read_splat(p) if p.suffix.lower() == ".splat" else read_ply(p)
+    g = read_model(p)
     src = app.source_gaussians
     n = file_rows(app)
     if len(g) != n or g.sh_degree != src.sh_degree:

@@ -1,5 +1,6 @@
-"""The export dialog: format (PLY, compressed PLY as SuperSplat reads it, .splat), the SH bands kept, the whole model
-or the selection, and the file's size before it is written (training/model/export.py does the writing)."""
+"""The export dialog: format (PLY, compressed PLY as SuperSplat reads it, .splat, SPZ, glTF .glb), the SH bands kept,
+the whole model or the selection, and the file's size before it is written (SPZ: once compressed;
+training/model/export.py does the writing)."""
 
 from __future__ import annotations
 
@@ -8,8 +9,8 @@ from pathlib import Path
 
 from imgui_bundle import imgui
 
-FORMATS = ("ply", "compressed-ply", "splat")
-SUFFIX = {"ply": ".ply", "compressed-ply": ".compressed.ply", "splat": ".splat"}
+from training.model.export import FORMATS, SUFFIXES as SUFFIX
+
 GREY = imgui.ImVec4(0.6, 0.6, 0.6, 1.0)
 
 
@@ -50,12 +51,15 @@ def export_section(app) -> None:
     _, st.selection_only = imgui.checkbox("selection only", st.selection_only)
     if st.format == "ply":
         _, st.compact_sh = imgui.checkbox("only the kept bands' coefficients", st.compact_sh)
+    if st.format == "spz":
+        _, v = imgui.combo("SPZ version", 0 if st.spz_version == 4 else 1, ["4 (current)", "3 (older readers)"])
+        st.spz_version = 4 if v == 0 else 3
     _, st.path = imgui.input_text("file", st.path)
     count = _count(app, st.selection_only)
     if count is not None:
         bands = 0 if top == 0 else min(st.sh_bands, top)
         size = export_size(st.format, bands, count, pad_sh=not st.compact_sh)
-        imgui.text(f"{count:,} Gaussians, {human_size(size)}")
+        imgui.text(f"{count:,} Gaussians, " + ("size known once compressed" if size is None else human_size(size)))
     else:
         imgui.text_colored(GREY, "nothing to export")
     if imgui.button("Export"):
@@ -93,7 +97,7 @@ def write(app) -> None:
                 raise ValueError("no selection on this model")
         top_bands = 0 if st.format == "splat" else st.sh_bands
         return write_export(path, g, fmt=st.format, sh_bands=min(top_bands, g.sh_degree), mask=mask,
-                            pad_sh=not st.compact_sh)
+                            pad_sh=not st.compact_sh, spz_version=st.spz_version)
 
     def said(result) -> None:
         app.say(f"wrote {result.path} ({result.count:,} Gaussians, {human_size(result.size)})")

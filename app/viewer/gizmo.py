@@ -329,7 +329,7 @@ def gizmo_section(app) -> None:
             app.guarded("add model", add_to_scene, app, st.add_path)
         else:
             app.guarded("add model", add_from_dialog, app)
-    imgui.set_item_tooltip("another .ply or .splat joins this one: drawn together, exported as one file (empty "
+    imgui.set_item_tooltip("another model file joins this one: drawn together, exported as one file (empty "
                            "path: a file dialog)")
     if len(shown) > 1:
         for fid in shown:
@@ -352,8 +352,9 @@ def gizmo_section(app) -> None:
 
 def add_from_dialog(app) -> None:
     from app.viewer.scene_panel import choose_file
+    from training.model.model_io import FILE_DIALOG_PATTERN
 
-    path = choose_file("Add model to scene", ["Gaussians", "*.ply *.splat"])
+    path = choose_file("Add model to scene", ["Gaussians", FILE_DIALOG_PATTERN])
     if path:
         add_to_scene(app, path)
 

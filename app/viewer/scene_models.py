@@ -195,7 +195,7 @@ def transform_rows(app, mask, matrix) -> None:
 def add_model(app, path: str, select: bool = True):
     """Join the model file at ``path`` to the scene (one undo step); opens it when no model is open. Its Gaussians
     are selected, so the gizmo moves it at once. Returns the file's index in the scene."""
-    from app.project import read_model
+    from training.model.model_io import read_model
     from app.project_bake import merge
 
     if app.editor is None:
@@ -275,7 +275,7 @@ def open_project_models(app, opened) -> None:
     """After a project's first model was opened (project_io.apply_project): its transform applied, and every
     other model of the project whose file is there joined to the scene with its rows, selection, hidden flags
     and transform, so the view shows what `export --project` writes. The history starts after them."""
-    from app.project import read_model
+    from training.model.model_io import read_model
     from app.project_bake import merge
 
     ed = app.editor

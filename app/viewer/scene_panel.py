@@ -64,7 +64,9 @@ def display_path_row(app) -> None:
 
 def scene_panel(app) -> None:
     imgui.separator_text("Files")
-    _path_row(app, "model", "model", app.open_model, ["Gaussians", "*.ply *.splat"])
+    from training.model.model_io import FILE_DIALOG_PATTERN
+
+    _path_row(app, "model", "model", app.open_model, ["Gaussians", FILE_DIALOG_PATTERN])
     _path_row(app, "dataset", "data", app.open_data, ["Scenes", "transforms.json cameras.bin images.bin"])
     _path_row(app, "painting", "style", app.open_style, ["Images", "*.jpg *.jpeg *.png *.exr *.tif"])
     changed, out = imgui.input_text("output folder", app.paths.out)

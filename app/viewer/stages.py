@@ -58,7 +58,7 @@ def stylize_stage(data: str | Path, style: str | Path, out: str | Path, config=N
     out = Path(out)
 
     def build(previous):
-        from training.model.ply_io import read_ply
+        from training.model.model_io import read_model
         from training.scene.loader import load_scene
         from training.stylize.pipeline import choose_downscale
         from training.stylize.style_image import load_style_image
@@ -70,7 +70,7 @@ def stylize_stage(data: str | Path, style: str | Path, out: str | Path, config=N
         cfg = config or StylizeConfig(preset="quick")
         painting = load_style_image(style)
         scene = load_scene(data, downscale=choose_downscale(Path(data), cfg.render_max_side))
-        return Stylizer(read_ply(source), scene, painting, cfg, vgg_weights=vgg_weights, model_name=source,
+        return Stylizer(read_model(source), scene, painting, cfg, vgg_weights=vgg_weights, model_name=source,
                         mask=mask)
 
     def save(trainer, finished: bool, cancel) -> Path:

@@ -29,8 +29,9 @@ class EditTools:
 
 @dataclass
 class ExportSettings:
-    format: str = "ply"  # ply | compressed-ply | splat
+    format: str = "ply"  # ply | compressed-ply | splat | spz | glb
     sh_bands: int = 3
+    spz_version: int = 4  # 4 (the current spec) or 3 for older readers
     selection_only: bool = False
     compact_sh: bool = False
     path: str = "viewer_out/export.ply"

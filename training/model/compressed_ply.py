@@ -167,3 +167,90 @@ def write_compressed_ply(path: str | Path, gaussians: Gaussians, sh_bands: int |
     with atomic_open(path, "wb") as f:
         f.write(data)
     return order
+
+
+# ----------------------------------------------------------------------------------------------------- reading
+def is_compressed_layout(elements: list[tuple[str, int, list[str]]]) -> bool:
+    """Whether PLY header elements (training.model.ply_io.ply_elements) are this layout's."""
+    names = {name: props for name, _, props in elements}
+    return "chunk" in names and "vertex" in names and "packed_position" in names["vertex"]
+
+
+def _unorm(word: np.ndarray, shift: int, bits: int) -> np.ndarray:
+    return ((word >> shift) & ((1 << bits) - 1)).astype(np.float64) / ((1 << bits) - 1)
+
+
+def read_compressed_ply(path: str | Path, device: str | torch.device = "cpu") -> Gaussians:
+    """Decode a compressed PLY (the module's layout; also the first version's chunks without colour bounds, whose
+    colours are plain 8-bit) into a model, values at their quantisation's decoded points: SH at the centre of their
+    byte's bin, opacities of 0 and 255 half a step in so their logits stay finite. InputError naming the file for
+    anything else."""
+    from training.core.errors import InputError
+    from training.model.ply_io import read_binary_elements
+
+    path = Path(path)
+    tables = read_binary_elements(path)
+    chunk, vertex, sh = tables.get("chunk"), tables.get("vertex"), tables.get("sh")
+    if chunk is None or vertex is None:
+        raise InputError(path, "not a compressed PLY: it needs 'chunk' and 'vertex' elements")
+    missing = [p for p in VERTEX_PROPERTIES + CHUNK_PROPERTIES[:12]
+               if p not in (vertex.dtype.names if p in VERTEX_PROPERTIES else chunk.dtype.names)]
+    if missing:
+        raise InputError(path, f"compressed PLY lacks {', '.join(missing)}")
+    n = len(vertex)
+    if n == 0:
+        raise InputError(path, "compressed PLY holds no Gaussians (vertex count 0)")
+    if len(chunk) != (n + CHUNK_SIZE - 1) // CHUNK_SIZE:
+        raise InputError(path, f"compressed PLY has {len(chunk)} chunks for {n} Gaussians; {CHUNK_SIZE} per chunk "
+                               f"needs {(n + CHUNK_SIZE - 1) // CHUNK_SIZE}")
+    c = np.arange(n) // CHUNK_SIZE
+
+    def bounds(names: list[str]) -> np.ndarray:
+        return np.stack([chunk[p][c].astype(np.float64) for p in names], axis=1)
+
+    def lerp(lo: np.ndarray, hi: np.ndarray, t: np.ndarray) -> np.ndarray:
+        return lo + (hi - lo) * t
+
+    def unpack_11_10_11(word: np.ndarray) -> np.ndarray:
+        return np.stack([_unorm(word, 21, 11), _unorm(word, 11, 10), _unorm(word, 0, 11)], axis=1)
+
+    words = {p: vertex[p].astype(np.int64) for p in VERTEX_PROPERTIES}
+    means = lerp(bounds(CHUNK_PROPERTIES[0:3]), bounds(CHUNK_PROPERTIES[3:6]),
+                 unpack_11_10_11(words["packed_position"]))
+    log_scales = lerp(bounds(CHUNK_PROPERTIES[6:9]), bounds(CHUNK_PROPERTIES[9:12]),
+                      unpack_11_10_11(words["packed_scale"]))
+    col = words["packed_color"]
+    rgb = np.stack([_unorm(col, 24, 8), _unorm(col, 16, 8), _unorm(col, 8, 8)], axis=1)
+    if all(p in chunk.dtype.names for p in CHUNK_PROPERTIES[12:]):
+        rgb = lerp(bounds(CHUNK_PROPERTIES[12:15]), bounds(CHUNK_PROPERTIES[15:18]), rgb)
+    alpha = _unorm(col, 0, 8).clip(0.5 / 255.0, 1.0 - 0.5 / 255.0)
+
+    rot = words["packed_rotation"]
+    three = np.stack([(_unorm(rot, s, 10) - 0.5) * np.sqrt(2.0) for s in (20, 10, 0)], axis=1)
+    largest = (rot >> 30) & 3
+    others = np.array([[j for j in range(4) if j != k] for k in range(4)])[largest]  # (N, 3)
+    quats = np.zeros((n, 4))
+    np.put_along_axis(quats, others, three, axis=1)
+    np.put_along_axis(quats, largest[:, None], np.sqrt(np.clip(1.0 - (three ** 2).sum(1), 0.0, None))[:, None], axis=1)
+
+    degree, rest = 0, np.zeros((n, 0, 3))
+    if sh is not None:
+        names = list(sh.dtype.names)
+        degrees = {3 * (num_sh_coeffs(d) - 1): d for d in range(4)}
+        if len(sh) != n or len(names) not in degrees or names != [f"f_rest_{i}" for i in range(len(names))]:
+            raise InputError(path, f"compressed PLY 'sh' element has {len(sh)} rows and {len(names)} properties; "
+                                   f"it needs {n} rows of f_rest_0.. with 9, 24 or 45 of them")
+        degree = degrees[len(names)]
+        raw = np.stack([sh[p] for p in names], axis=1).astype(np.float64)
+        rest = (((raw + 0.5) / 256.0 - 0.5) * SH_RANGE).reshape(n, 3, -1).transpose(0, 2, 1)  # channel-major
+    for name, v in (("position", means), ("scale", log_scales), ("colour", rgb)):
+        if not np.isfinite(v).all():
+            raise InputError(path, f"{int((~np.isfinite(v)).any(axis=1).sum())} of {n} Gaussians have NaN or "
+                                   f"infinite chunk bounds for their {name}")
+
+    def t(x: np.ndarray) -> torch.Tensor:
+        return torch.from_numpy(np.ascontiguousarray(x, dtype=np.float32)).to(device)
+
+    return Gaussians(means=t(means), log_scales=t(log_scales), quats=t(quats),
+                     opacity_logits=t(np.log(alpha / (1.0 - alpha))), sh0=t(((rgb - 0.5) / SH_C0)[:, None, :]),
+                     shN=t(rest), sh_degree=degree)

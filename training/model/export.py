@@ -3,7 +3,10 @@ and know the file's size before writing it: the API behind ``splatstyler export`
 
 Formats: ``ply`` (standard 3DGS PLY, float32, 248 bytes per Gaussian with all 45 f_rest, fewer with ``pad_sh``
 off), ``compressed-ply`` (PlayCanvas's chunked layout, 16 bytes per Gaussian + 3 per SH coefficient kept;
-training/model/compressed_ply.py), ``splat`` (antimatter15's 32 bytes per Gaussian, colour only).
+training/model/compressed_ply.py), ``splat`` (antimatter15's 32 bytes per Gaussian, colour only), ``spz`` (Niantic's
+SPZ, version 4 or 3, quantised and compressed: its size is known only once written; training/model/spz_io.py) and
+``glb`` (glTF 2.0 with KHR_gaussian_splatting, float32, 60 bytes per Gaussian + 12 per higher SH coefficient
+(RGB); training/model/gltf_io.py).
 """
 
 from __future__ import annotations
@@ -16,21 +19,20 @@ import torch
 
 from training.model.gaussians import Gaussians, num_sh_coeffs
 
-FORMATS = ("ply", "compressed-ply", "splat")
-FORMAT_NAMES = {"ply": "PLY", "compressed-ply": "compressed PLY", "splat": ".splat"}
+FORMATS = ("ply", "compressed-ply", "splat", "spz", "glb")
+FORMAT_NAMES = {"ply": "PLY", "compressed-ply": "compressed PLY", "splat": ".splat", "spz": "SPZ",
+                "glb": "glTF (.glb, KHR_gaussian_splatting)"}
+SUFFIXES = {"ply": ".ply", "compressed-ply": ".compressed.ply", "splat": ".splat", "spz": ".spz", "glb": ".glb"}
+SUFFIX_LIST = ".ply, .compressed.ply, .splat, .spz or .glb"
 
 
 def format_for_path(path: str | Path) -> str | None:
     """The format a file name asks for: ``*.compressed.ply`` -> compressed-ply, ``*.ply`` -> ply, ``*.splat``
-    -> splat; None for anything else."""
+    -> splat, ``*.spz`` -> spz, ``*.glb`` -> glb; None for anything else."""
     name = Path(path).name.lower()
     if name.endswith(".compressed.ply"):
         return "compressed-ply"
-    if name.endswith(".ply"):
-        return "ply"
-    if name.endswith(".splat"):
-        return "splat"
-    return None
+    return next((fmt for fmt, suffix in SUFFIXES.items() if name.endswith(suffix)), None)
 
 
 def max_sh_bands(fmt: str) -> int:
@@ -38,9 +40,16 @@ def max_sh_bands(fmt: str) -> int:
     return 0 if fmt == "splat" else 3
 
 
-def export_size(fmt: str, sh_bands: int, count: int, pad_sh: bool = True) -> int:
-    """Bytes of the file ``write_export`` writes for ``count`` Gaussians keeping ``sh_bands`` (0-3) bands."""
+def export_size(fmt: str, sh_bands: int, count: int, pad_sh: bool = True) -> int | None:
+    """Bytes of the file ``write_export`` writes for ``count`` Gaussians keeping ``sh_bands`` (0-3) bands; None for
+    SPZ, whose size its compression decides."""
     _check(fmt, sh_bands)
+    if fmt == "spz":
+        return None
+    if fmt == "glb":
+        from training.model.gltf_io import glb_size
+
+        return glb_size(count, sh_bands)
     if fmt == "ply":
         from training.model.ply_io import ply_file_size
 
@@ -84,13 +93,14 @@ class ExportResult:
 
 
 def write_export(path: str | Path, gaussians: Gaussians, fmt: str | None = None, sh_bands: int | None = None,
-                 mask=None, pad_sh: bool = True) -> ExportResult:
+                 mask=None, pad_sh: bool = True, spz_version: int | None = None) -> ExportResult:
     """Write ``gaussians`` (only ``mask``'s when given) to ``path`` in ``fmt`` (default: from the file name) keeping
-    ``sh_bands`` (default: all the format and the model hold), atomically. ValueError for an unknown format, bands
-    the model or format lacks, an empty selection or a non-finite model."""
+    ``sh_bands`` (default: all the format and the model hold), atomically; ``spz_version`` 3 or 4 (default: the
+    current, 4) for SPZ. ValueError for an unknown format, bands the model or format lacks, an empty selection or a
+    non-finite model."""
     fmt = fmt or format_for_path(path)
     if fmt is None:
-        raise ValueError(f"cannot tell the format from {Path(path).name!r}; name it .ply, .compressed.ply or .splat")
+        raise ValueError(f"cannot tell the format from {Path(path).name!r}; name it {SUFFIX_LIST}")
     g = selected(gaussians, mask)
     bands = min(g.sh_degree, max_sh_bands(fmt)) if sh_bands is None else int(sh_bands)
     _check(fmt, bands)
@@ -106,6 +116,14 @@ def write_export(path: str | Path, gaussians: Gaussians, fmt: str | None = None,
         from training.model.compressed_ply import write_compressed_ply
 
         order = write_compressed_ply(path, g)
+    elif fmt == "spz":
+        from training.model.spz_io import LATEST_SPZ_VERSION, write_spz
+
+        write_spz(path, g, version=LATEST_SPZ_VERSION if spz_version is None else spz_version)
+    elif fmt == "glb":
+        from training.model.gltf_io import write_glb
+
+        write_glb(path, g)
     else:
         from training.model.splat_io import write_splat
 

@@ -313,3 +313,48 @@ def _recorded_degree(comments: list[str]) -> int | None:
                 return None
             return d if 0 <= d <= MAX_SH_DEGREE else None
     return None
+
+
+# ------------------------------------------------------------------ the header and whole tables, for other layouts
+def ply_elements(path: str | Path) -> list[tuple[str, int, list[str]]]:
+    """(name, count, property names) of each element a PLY header declares; InputError naming the file for a
+    missing or unreadable file or a header that does not parse. Reads only the header."""
+    path = Path(path)
+    try:
+        with open(path, "rb") as f:
+            head = f.read(_MAX_HEADER_BYTES)
+    except OSError as exc:
+        raise InputError(path, f"cannot read: {exc.strerror or exc}") from None
+    _, elements, _, _ = _parse_header(path, head)
+    return [(e.name, e.count, [name for name, _ in e.properties]) for e in elements]
+
+
+def read_binary_elements(path: str | Path) -> dict[str, np.ndarray]:
+    """Every element of a binary PLY without list properties, as structured arrays in native byte order, the file's
+    size checked against the header first (the compressed PLY's chunk/vertex/sh tables)."""
+    path = Path(path)
+    try:
+        with open(path, "rb") as f:
+            head = f.read(_MAX_HEADER_BYTES)
+        fmt, elements, _, start = _parse_header(path, head)
+        if fmt == "ascii":
+            raise InputError(path, "is an ASCII PLY; this layout is binary")
+        order = "<" if fmt == "binary_little_endian" else ">"
+        dtypes = []
+        for e in elements:
+            if e.has_list:
+                raise InputError(path, f"PLY element '{e.name}' has list properties")
+            dtypes.append(np.dtype([(n, order + t) for n, t in e.properties]))
+        need = sum(e.count * d.itemsize for e, d in zip(elements, dtypes))
+        size = path.stat().st_size - start
+        if size != need:
+            what = "truncated" if size < need else f"{size - need} bytes longer than its header says"
+            raise InputError(path, f"PLY file is {what}: the header declares {need} bytes of data, the file holds "
+                                   f"{size}")
+        tables, offset = {}, start
+        for e, d in zip(elements, dtypes):
+            tables[e.name] = np.fromfile(path, dtype=d, count=e.count, offset=offset).astype(d.newbyteorder("="))
+            offset += e.count * d.itemsize
+    except OSError as exc:
+        raise InputError(path, f"cannot read: {exc.strerror or exc}") from None
+    return tables

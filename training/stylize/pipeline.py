@@ -53,7 +53,8 @@ def stylize_to_folder(model: Path, data: Path, style: Path, out: Path, config: S
     from training.core.atomic_write import atomic_open, check_output_dir, make_output_dir
     from training.scene.fingerprint import InputsChanged, check_same_inputs
     from training.scene.image_io import write_image
-    from training.model.ply_io import read_ply, write_ply
+    from training.model.model_io import read_model
+    from training.model.ply_io import write_ply
     from training.scene.loader import load_scene
     from training.stylize.checkpoint import (CHECKPOINT_NAME, load_stylize_checkpoint, save_stylize_checkpoint,
                                              stylize_fingerprint)
@@ -70,7 +71,7 @@ def stylize_to_folder(model: Path, data: Path, style: Path, out: Path, config: S
         raise InputError(out, "output exists and is not a folder")
     check_output_dir(out)
     style_image = load_style_image(style)  # first: a bad painting should not cost a scene load
-    gaussians = read_ply(model)
+    gaussians = read_model(model)
     ckpt_path = out / CHECKPOINT_NAME
     fingerprint = stylize_fingerprint(model, data, style, config, mask)
     state = None

@@ -1,0 +1,44 @@
+"""Readers and writers we did not write, for the format tests: PlayCanvas's splat-transform (its own SPZ decoder, the
+SPZ reference's encoder built to WebAssembly as ``@adobe/spz``, a .glb writer) and the Khronos glTF validator.
+They come from npm, pinned by tests/js/package-lock.json, and are installed (``npm ci``, ~15 s) on first use; the
+tests that need them skip only where node and npm are missing."""
+
+from __future__ import annotations
+
+import json
+import shutil
+import subprocess
+from pathlib import Path
+
+import pytest
+
+JS = Path(__file__).resolve().parent / "js"
+SPLAT_TRANSFORM = JS / "node_modules" / "@playcanvas" / "splat-transform" / "bin" / "cli.mjs"
+VALIDATOR = JS / "node_modules" / "gltf-validator" / "package.json"
+
+
+def _node() -> str:
+    node = shutil.which("node")
+    if node is None or shutil.which("npm") is None:
+        pytest.skip("node and npm are needed for the readers we did not write (tests/js/package.json)")
+    if not SPLAT_TRANSFORM.exists() or not VALIDATOR.exists():
+        proc = subprocess.run(["npm", "ci", "--no-audit", "--no-fund", "--ignore-scripts"], cwd=JS,
+                              capture_output=True, text=True, timeout=900)
+        assert proc.returncode == 0, f"npm ci in {JS} failed:\n{proc.stderr[-2000:]}"
+    return node
+
+
+def splat_transform(*args) -> str:
+    """Run splat-transform's CLI (overwriting outputs); its output, or an AssertionError with it."""
+    proc = subprocess.run([_node(), str(SPLAT_TRANSFORM), "-w", *map(str, args)], capture_output=True, text=True,
+                          timeout=300)
+    assert proc.returncode == 0, f"splat-transform {args} failed:\n{proc.stdout[-2000:]}\n{proc.stderr[-2000:]}"
+    return proc.stdout + proc.stderr
+
+
+def validate_gltf(path: Path) -> dict:
+    """The Khronos glTF validator's report of the file at ``path``."""
+    proc = subprocess.run([_node(), str(JS / "validate_gltf.cjs"), str(path)], cwd=JS, capture_output=True,
+                          text=True, timeout=300)
+    assert proc.returncode == 0, proc.stderr
+    return json.loads(proc.stdout)

@@ -1,0 +1,121 @@
+"""``read_model(path)``: every Gaussian model file, read under one rule; the only way a model file enters.
+
+The rule: **the file's first bytes decide**, its name only where the format has no signature.
+
+==================  ====================================================  =================================
+format              recognised by                                         read by
+==================  ====================================================  =================================
+``ply``             starts with ``ply``; header without a ``chunk``       training/model/ply_io.py
+``compressed-ply``  starts with ``ply``; ``chunk`` + ``packed_position``  training/model/compressed_ply.py
+``spz``             starts with ``NGSP`` (v4) or a gzip header (v1-3)     training/model/spz_io.py
+``glb``             starts with ``glTF``                                  training/model/gltf_io.py
+``splat``           the name ends in ``.splat`` (the format has no        training/model/splat_io.py
+                    header)
+==================  ====================================================  =================================
+
+A file whose bytes match none gets the error of the format its name asks for (``x.spz: not an SPZ file ...``), or
+says which files are models. What comes back is validated once here: at least one Gaussian, every value finite
+(each reader also refuses what its format rules out), on ``device``, with RDF axes (training/model/axes.py).
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import torch
+
+from training.core.errors import InputError
+from training.model.gaussians import Gaussians
+
+MODEL_FORMATS = ("ply", "compressed-ply", "splat", "spz", "glb")
+MODEL_SUFFIXES = (".ply", ".splat", ".spz", ".glb")  # .compressed.ply ends in .ply
+FILE_DIALOG_PATTERN = " ".join("*" + s for s in MODEL_SUFFIXES)
+WHAT_MODELS_ARE = "a Gaussian model file (.ply, .compressed.ply, .splat, .spz or .glb)"
+_GZIP = b"\x1f\x8b"
+
+
+def has_model_suffix(path: str | Path) -> bool:
+    """Whether the name is a model file's (what a file dialog or a drop checks before reading)."""
+    return Path(path).suffix.lower() in MODEL_SUFFIXES
+
+
+def model_format(path: str | Path) -> str | None:
+    """The format of the model file at ``path`` by the rule above, None for a file that is no model (a scene's
+    transforms.json, an image). InputError for a missing path or a PLY whose header does not parse."""
+    path = Path(path)
+    if not path.exists():
+        raise InputError(path, "does not exist")
+    if not path.is_file():
+        return None
+    try:
+        with open(path, "rb") as f:
+            head = f.read(4)
+    except OSError as exc:
+        raise InputError(path, f"cannot read: {exc.strerror or exc}") from None
+    if head in (b"ply\n", b"ply\r"):
+        from training.model.compressed_ply import is_compressed_layout
+        from training.model.ply_io import ply_elements
+
+        return "compressed-ply" if is_compressed_layout(ply_elements(path)) else "ply"
+    if head == b"NGSP" or head[:2] == _GZIP:
+        return "spz"
+    if head == b"glTF":
+        return "glb"
+    if path.suffix.lower() == ".splat":
+        return "splat"
+    return None
+
+
+def _not_a_model(path: Path) -> InputError:
+    """The error for a file whose bytes are no model's: the one of the format its name asks for."""
+    suffix = path.suffix.lower()
+    if suffix == ".ply":
+        from training.model.ply_io import read_ply
+
+        read_ply(path)  # raises the precise "not a PLY file" error
+    if suffix == ".spz":
+        return InputError(path, "not an SPZ file: it starts with neither 'NGSP' (version 4) nor a gzip header "
+                                "(versions 1-3)")
+    if suffix == ".glb":
+        return InputError(path, "not a binary glTF (.glb) file: it does not start with 'glTF'")
+    if suffix == ".gltf":
+        return InputError(path, "a text .gltf is not read; export or convert it to a binary .glb")
+    return InputError(path, f"is not {WHAT_MODELS_ARE}")
+
+
+def checked_format(path: str | Path) -> str:
+    """The format of the model file at ``path``; the error ``read_model`` would give when it is none (checks a
+    command line's model before a window opens, without reading the whole file)."""
+    path = Path(path)
+    fmt = model_format(path)
+    if fmt is None:
+        if path.is_dir():
+            raise InputError(path, f"is a folder; expected {WHAT_MODELS_ARE}")
+        raise _not_a_model(path)
+    return fmt
+
+
+def read_model(path: str | Path, device: str | torch.device = "cpu") -> Gaussians:
+    """The Gaussians of the model file at ``path`` (any format in the table), validated, on ``device``.
+    InputError naming the file, in one line, for anything that is not a readable model."""
+    path = Path(path)
+    fmt = checked_format(path)
+    if fmt == "ply":
+        from training.model.ply_io import read_ply as read
+    elif fmt == "compressed-ply":
+        from training.model.compressed_ply import read_compressed_ply as read
+    elif fmt == "spz":
+        from training.model.spz_io import read_spz as read
+    elif fmt == "glb":
+        from training.model.gltf_io import read_glb as read
+    else:
+        from training.model.splat_io import read_splat as read
+    gaussians = read(path)
+    n = len(gaussians)
+    if n == 0:
+        raise InputError(path, "holds no Gaussians")
+    for name, t in gaussians.parameters().items():
+        if t.numel() and not bool(torch.isfinite(t).all()):
+            bad = int((~torch.isfinite(t)).reshape(n, -1).any(dim=1).sum())
+            raise InputError(path, f"{bad} of {n} Gaussians have NaN or infinite {name}")
+    return gaussians.to(device)
