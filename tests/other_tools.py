@@ -18,9 +18,12 @@ VALIDATOR = JS / "node_modules" / "gltf-validator" / "package.json"
 
 
 def _node() -> str:
+    from tests.system_deps import missing_program
+
+    missing = missing_program("node", "nodejs npm") or missing_program("npm", "nodejs npm")
+    if missing:
+        pytest.skip(f"{missing}: the readers we did not write come from npm (tests/js/package.json)")
     node = shutil.which("node")
-    if node is None or shutil.which("npm") is None:
-        pytest.skip("node and npm are needed for the readers we did not write (tests/js/package.json)")
     if not SPLAT_TRANSFORM.exists() or not VALIDATOR.exists():
         proc = subprocess.run(["npm", "ci", "--no-audit", "--no-fund", "--ignore-scripts"], cwd=JS,
                               capture_output=True, text=True, timeout=900)
