@@ -50,7 +50,9 @@ import io
 import json
 import math
 import os
+import shutil
 import zipfile
+import zlib
 from dataclasses import dataclass, field, fields
 from pathlib import Path
 from typing import Callable
@@ -68,6 +70,13 @@ MANIFEST = "project.json"
 # version n -> a function giving the version n+1 manifest; a new version adds its step here
 MIGRATIONS: dict[int, Callable[[dict], dict]] = {}
 _HASH_CHUNK = 1 << 20
+# what a member may inflate to: a manifest is settings and keyframes (kilobytes); an array has a row per Gaussian,
+# and no scene has 100 million of them. Checked before a member is inflated (a zip bomb is refused unread); zipfile
+# itself stops a member at the size its header declares.
+MAX_MANIFEST_BYTES = 64 << 20
+MAX_ARRAY_ROWS = 100_000_000
+# what reading a damaged member raises: a checksum or deflate error, a member cut short
+_ZIP_ERRORS = (zipfile.BadZipFile, zlib.error, EOFError, OSError, ValueError)
 
 
 # --------------------------------------------------------------------------------------------- the project
@@ -130,9 +139,9 @@ class Project:
         if ref.embedded is not None and self.source is not None:
             import tempfile
 
-            with zipfile.ZipFile(self.source) as z, tempfile.TemporaryDirectory() as tmp:
+            with tempfile.TemporaryDirectory() as tmp:
                 target = Path(tmp) / Path(ref.embedded).name
-                target.write_bytes(z.read(ref.embedded))
+                extract_member(self.source, ref.embedded, target)
                 return read_model(target)
         if ref.missing:
             raise InputError(ref.path, "model file not found")
@@ -148,6 +157,26 @@ def read_model(path: Path):
     from training.model.ply_io import read_ply
 
     return read_ply(path)
+
+
+def extract_member(source: Path, member: str, target: Path) -> Path:
+    """Copy the project's member (an embedded model) to the file ``target``, streamed (a model may be larger than
+    the memory) and atomically; InputError naming the project when the member is damaged."""
+    from training.core.atomic_write import atomic_open
+
+    try:
+        with zipfile.ZipFile(source) as z, z.open(member) as src, atomic_open(target, "wb") as dst:
+            shutil.copyfileobj(src, dst, _HASH_CHUNK)
+    except KeyError:
+        raise InputError(source, f"embedded model {member} is not in the project") from None
+    except _ZIP_ERRORS as exc:
+        raise InputError(source, f"embedded model {member} cannot be read ({_first_line(exc)})") from None
+    return target
+
+
+def _first_line(exc: BaseException) -> str:
+    text = str(exc).strip()
+    return text.splitlines()[0] if text else type(exc).__name__
 
 
 def file_sha256(path: str | Path) -> str:
@@ -238,9 +267,16 @@ def save_project(path: str | Path, project: Project, embed: bool = False) -> Pat
                 # models are stored, not deflated: PLY floats barely compress and are large
                 if kind == "file":
                     z.write(src, member, compress_type=zipfile.ZIP_STORED)
-                else:
-                    with zipfile.ZipFile(project.source) as old:
-                        z.writestr(zipfile.ZipInfo(member), old.read(src), compress_type=zipfile.ZIP_STORED)
+                else:  # streamed from the project it was opened from: a model may be larger than the memory
+                    info = zipfile.ZipInfo(member)
+                    info.compress_type = zipfile.ZIP_STORED
+                    try:
+                        with zipfile.ZipFile(project.source) as old, old.open(src) as fin, \
+                                z.open(info, "w", force_zip64=True) as fout:
+                            shutil.copyfileobj(fin, fout, _HASH_CHUNK)
+                    except _ZIP_ERRORS as exc:
+                        raise InputError(project.source, f"embedded model {src} cannot be read "
+                                                         f"({_first_line(exc)})") from None
     return path
 
 
@@ -272,9 +308,18 @@ def open_project(path: str | Path, check_hashes: bool = True) -> tuple[Project, 
         raise InputError(path, "not a splatstyler project (not a zip file)") from None
     with z:
         try:
-            data = json.loads(z.read(MANIFEST))
+            info = z.getinfo(MANIFEST)
         except KeyError:
             raise InputError(path, f"not a splatstyler project (no {MANIFEST} inside)") from None
+        if info.file_size > MAX_MANIFEST_BYTES:
+            raise InputError(path, f"{MANIFEST} would inflate to {info.file_size:,} bytes; a project's is at most "
+                                   f"{MAX_MANIFEST_BYTES:,}")
+        try:
+            raw = z.read(info)
+        except _ZIP_ERRORS as exc:
+            raise InputError(path, f"{MANIFEST} cannot be read ({_first_line(exc)})") from None
+        try:
+            data = json.loads(raw)
         except (ValueError, UnicodeDecodeError) as exc:
             raise InputError(path, f"{MANIFEST} is not valid JSON ({str(exc).splitlines()[0]})") from None
         reader = _Reader(path, z, check_hashes)
@@ -314,7 +359,7 @@ class _Reader:
         raise InputError(self.path, problem)
 
     def project(self, data: dict) -> Project:
-        from app.camera_path import _keyframe
+        from app.camera_path import CameraPath, _keyframe
 
         models = data.get("models", [])
         if not isinstance(models, list):
@@ -336,6 +381,8 @@ class _Reader:
         p.path_duration = self.number(path, "duration", 8.0, "camera_path.", positive=True)
         p.path_fps = self.number(path, "fps", 30.0, "camera_path.", positive=True)
         p.path_loop = bool(path.get("loop", False))
+        if p.path_keys:  # a path file's limits: the viewer draws the path and renders it to a video
+            CameraPath(p.path_keys, p.path_duration, p.path_fps, p.path_loop).validate(self.path)
         p.layout = data.get("layout", "")
         if not isinstance(p.layout, str):
             self.fail("'layout' must be text")
@@ -379,16 +426,30 @@ class _Reader:
         if not isinstance(member, str):
             self.fail(f"'{where}' must name an array member, got {member!r}")
         try:
-            a = np.load(io.BytesIO(self.z.read(member)), allow_pickle=False)
+            info = self.z.getinfo(member)
         except KeyError:
             self.fail(f"'{where}' names {member}, which is not in the project")
-        except (ValueError, OSError) as exc:
-            self.fail(f"{member} is not a readable .npy array ({exc})")
-        ok = a.dtype == bool if dtype == "bool" else a.dtype.kind in "iu"
-        if a.ndim != 1 or not ok:
-            self.fail(f"{member} must be a 1-D {dtype} array, got {a.dtype} {a.shape}")
-        if length is not None and len(a) != length:
-            self.fail(f"{member} has {len(a)} rows, expected {length}")
+        fmt = np.lib.format
+        try:
+            with self.z.open(info) as f:
+                # the header first: the array's type and length are checked before anything is inflated
+                version = fmt.read_magic(f)
+                read_header = fmt.read_array_header_1_0 if version == (1, 0) else fmt.read_array_header_2_0
+                shape, fortran, kind = read_header(f)
+                ok = kind == np.dtype(bool) if dtype == "bool" else kind.kind in "iu"
+                if len(shape) != 1 or not ok or kind.hasobject:
+                    self.fail(f"{member} must be a 1-D {dtype} array, got {kind} {shape}")
+                rows = shape[0]
+                if rows > MAX_ARRAY_ROWS:
+                    self.fail(f"{member} holds {rows:,} rows; a project array holds at most {MAX_ARRAY_ROWS:,}")
+                if length is not None and rows != length:
+                    self.fail(f"{member} has {rows} rows, expected {length}")
+                if info.file_size != f.tell() + rows * kind.itemsize:
+                    self.fail(f"{member} is {info.file_size:,} bytes, not the {rows:,} rows its header declares")
+                a = np.frombuffer(f.read(rows * kind.itemsize), dtype=kind).copy()
+                f.read()  # to the end: zipfile checks the member's CRC there
+        except _ZIP_ERRORS as exc:
+            self.fail(f"{member} is not a readable .npy array ({_first_line(exc)})")
         return a.astype(np.int64) if dtype == "int" else a
 
     def ref(self, d, what: str, recorded_hash: bool = False) -> FileRef | None:

@@ -116,7 +116,7 @@ def _in_viewer(args, data: Path, style: Path, out: Path, generated_scene: bool) 
     if stopped_by:
         return 128 + stopped_by
     # the run's own folder (stylized, or stylized_2... when an earlier demo's output is there)
-    recon = out / "reconstruction" / "point_cloud.ply"
+    recon = Path(app.training.base_model or out / "reconstruction" / "point_cloud.ply")  # this run's folder
     styled = app.training.runs[-1] if app.training.runs else out / "stylized" / "point_cloud.ply"
     if recon.is_file() and styled.is_file() and not app.error:
         from app.demo_sheet import demo_contact_sheet

@@ -18,7 +18,7 @@ from pathlib import Path
 
 import numpy as np
 
-from app.project import FileRef, ModelEntry, Project, open_project
+from app.project import FileRef, ModelEntry, Project, extract_member, open_project
 from app.viewer.world_edit import open_with_world, world_of
 from training.model.colour_edit import ColourEdits
 
@@ -99,13 +99,8 @@ def apply_project(app, path: str | Path) -> Opened:
     if entry is not None:
         model_path = entry.file.path
         if entry.file.embedded is not None:  # the viewer opens files: the embedded model goes to the output folder
-            import zipfile
-
-            from training.core.atomic_write import atomic_open
-
-            model_path = Path(app.paths.out) / "project_models" / Path(entry.file.embedded).name
-            with zipfile.ZipFile(project.source) as z, atomic_open(model_path, "wb") as f:
-                f.write(z.read(entry.file.embedded))
+            model_path = extract_member(project.source, entry.file.embedded,
+                                        Path(app.paths.out) / "project_models" / Path(entry.file.embedded).name)
         app.open_model(str(model_path))
         ed = app.editor
         if entry.kept is not None:

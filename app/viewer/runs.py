@@ -41,8 +41,10 @@ class RunsMixin:
         if not self.paths.data:
             raise ValueError("open a dataset first (COLMAP folder or transforms.json)")
         overrides = {} if self.training.recon_iters is None else {"iterations": int(self.training.recon_iters)}
-        stages = [reconstruct_stage(self.paths.data, self.out_dir() / "reconstruction", preset=self.training.preset,
-                                    downscale=self.training.downscale, **overrides)]
+        # each run in a folder of its own (reconstruction, reconstruction_2...): a later run never overwrites a model
+        # that a project or a stylization refers to
+        stages = [reconstruct_stage(self.paths.data, next_run_dir(self.out_dir(), "reconstruction"),
+                                    preset=self.training.preset, downscale=self.training.downscale, **overrides)]
         if then_stylize:
             if self.style_image is None:
                 raise ValueError("open a painting first")
@@ -67,11 +69,13 @@ class RunsMixin:
             model = self.training.base_model or self.paths.model or None
         if model is None:
             raise ValueError("open a model (PLY) or reconstruct first")
+        run = next_run_dir(self.out_dir())
         if self.edited() and not (self.training.continue_last_run and self.training.runs):
             from training.model.ply_io import write_ply
 
-            # the stylization starts from what the user sees: the model after the deletes and crops
-            model = self.out_dir() / "edited_model.ply"
+            # the stylization starts from what the user sees: the model after the deletes and crops, kept in the
+            # run's own folder (it is that run's original, for style strength; a later run writes its own)
+            model = run / "edited_model.ply"
             model.parent.mkdir(parents=True, exist_ok=True)
             write_ply(model, self.edited_gaussians())
         from app.viewer.world_edit import in_file_frame
@@ -79,7 +83,7 @@ class RunsMixin:
         self.original = in_file_frame(self, self.static_model)  # the run works in the file's (dataset's) frame
         self.colour.stylized_from = str(model)  # the Colour panel offers it as the result's original
         self.error = ""
-        self.session.start([stylize_stage(self.paths.data, self.paths.style, next_run_dir(self.out_dir()),
+        self.session.start([stylize_stage(self.paths.data, self.paths.style, run,
                                           config=self._stylize_config_copy(), model=model,
                                           mask=self.region_mask())])
 

@@ -125,11 +125,16 @@ class LiveSession:
     def submit(self, fn: Callable[[Any], Any]) -> Future:
         """Run ``fn(trainer)`` on the training thread between two steps (never during one) and return a Future of
         its result. Every change to a running trainer's Gaussians (deletions, crops, the stylization's region) and
-        every read that must be whole (an export) goes through here, in the order submitted."""
-        if not self.running:
+        every read that must be whole (an export) goes through here, in the order submitted.
+
+        The call belongs to the trainer running now (whose model the user acted on): it runs on that trainer, at
+        the latest when its stage ends and before the stage saves; once the next stage has begun it is refused
+        (the Future's exception says so), never run on the next stage's trainer."""
+        trainer = self._trainer
+        if not self.running or trainer is None:
             raise ValueError("no trainer is running")
         future: Future = Future()
-        self._commands.put(("call", fn, future))
+        self._commands.put(("call", fn, future, trainer, self._status.stage))
         return future
 
     def update_config(self, **changes: Any) -> str | None:
@@ -211,13 +216,34 @@ class LiveSession:
             self._paused = True
             return True
         elif name == "call":
-            _, fn, future = command
-            if future.set_running_or_notify_cancel():
+            _, fn, future, trainer, stage = command
+            if not future.set_running_or_notify_cancel():
+                pass
+            elif trainer is not self._trainer:
+                future.set_exception(RuntimeError(f"the {stage} stage ended before this reached its model: "
+                                                  "do it again on the model shown now"))
+            else:
                 try:
-                    future.set_result(fn(self._trainer))
+                    future.set_result(fn(trainer))
                 except Exception as exc:  # noqa: BLE001  (the caller reads it from the future)
                     future.set_exception(exc)
         return False
+
+    def _calls_before_save(self) -> None:
+        """The calls queued for the trainer whose stage ends run now, before it saves (a deletion clicked during
+        its last step is in the saved model); the other commands stay queued, in order."""
+        kept = []
+        while True:
+            try:
+                command = self._commands.get_nowait()
+            except queue.Empty:
+                break
+            if command[0] == "call":
+                self._handle(command)
+            else:
+                kept.append(command)
+        for command in kept:
+            self._commands.put(command)
 
     def _next_commands(self) -> bool:
         """Drain the commands; while paused wait for one (no CPU spent). True when one step is asked for."""
@@ -268,6 +294,7 @@ class LiveSession:
                           step=getattr(trainer, "step_count", getattr(trainer, "iteration", 0)))
                 self._train(trainer)
                 finished = trainer.done
+                self._calls_before_save()
                 self._set(state="finishing")
                 previous = stage.save(trainer, finished, self._stop.is_set)
                 if previous is not None:
