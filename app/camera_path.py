@@ -144,6 +144,9 @@ class CameraPath:
             raise InputError(name, f"{self.duration:g} s at {self.fps:g} fps is {self.frame_count} frames; "
                                    f"1..{MAX_FRAMES} are allowed")
 
+    def copy(self) -> "CameraPath":
+        return CameraPath(list(self.keyframes), self.duration, self.fps, self.loop)
+
     @property
     def frame_count(self) -> int:
         return max(1, int(round(self.duration * self.fps)))
@@ -212,7 +215,7 @@ class CameraPath:
         keys = data.get("keyframes")
         if not isinstance(keys, list) or not keys:
             raise InputError(name, "'keyframes' must be a non-empty list")
-        path = cls([_keyframe(k, i, name) for i, k in enumerate(keys)],
+        path = cls([parse_keyframe(k, i, name) for i, k in enumerate(keys)],
                    duration=_number(data, "duration", 8.0, name), fps=_number(data, "fps", 30.0, name),
                    loop=bool(data.get("loop", False)))
         path.validate(name)
@@ -237,7 +240,7 @@ def _number(data: dict, key: str, default, name) -> float:
     return float(value)
 
 
-def _keyframe(k, i: int, name) -> Keyframe:
+def parse_keyframe(k, i: int, name) -> Keyframe:
     where = f"keyframe {i}"
     if not isinstance(k, dict):
         raise InputError(name, f"{where} is not an object")

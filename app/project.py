@@ -59,6 +59,7 @@ from typing import Callable
 
 import numpy as np
 
+from app.camera_path import CameraPath, parse_keyframe
 from training.core.atomic_write import atomic_path
 from training.core.errors import InputError
 from training.model.colour_edit import ColourAdjustment, ColourEdits
@@ -119,10 +120,7 @@ class Project:
     stylize: dict = field(default_factory=dict)  # StylizeConfig fields (stylize_config() builds one)
     camera: object = None  # app.camera_path.Keyframe or None
     camera_distance: float = 1.0  # the viewer's orbit centre, this far in front of the camera
-    path_keys: list = field(default_factory=list)  # app.camera_path.Keyframe
-    path_duration: float = 8.0
-    path_fps: float = 30.0
-    path_loop: bool = False
+    camera_path: CameraPath = field(default_factory=CameraPath)  # the video's path (the Camera path panel's)
     layout: str = ""  # imgui ini text of the dock layout
     up: np.ndarray = field(default_factory=lambda: np.array([0.0, -1.0, 0.0]))
     world: np.ndarray = field(default_factory=lambda: np.eye(4))  # similarity: up axis and scale
@@ -189,10 +187,10 @@ def file_sha256(path: str | Path) -> str:
 
 # --------------------------------------------------------------------------------------------- saving
 def save_project(path: str | Path, project: Project, embed: bool = False) -> Path:
-    """Write ``project`` to ``path`` (``.splatproj`` added when missing) atomically. Each model's hash is taken
-    from the file as it is now (the edits refer to those rows), except for a file opened as missing or changed,
-    which keeps its recorded hash (so it is still recognised, or still flagged); ``embed`` copies the model files
-    into the project (models already embedded stay embedded). Returns the path written."""
+    """Write ``project`` to ``path`` (``.splatproj`` added when missing) atomically. Each model's hash is the one
+    its reference carries (taken when the file was opened: the edits refer to those rows, so a file rewritten
+    since is flagged when the project opens), else the file's as it is now; ``embed`` copies the model files into
+    the project (models already embedded stay embedded, under the same member name). Returns the path written."""
     path = Path(path)
     if path.suffix != SUFFIX:
         path = path.with_name(path.name + SUFFIX)
@@ -205,20 +203,23 @@ def save_project(path: str | Path, project: Project, embed: bool = False) -> Pat
             return None
         out = {"path": _relative(r.path, folder), "abs_path": str(Path(r.path).absolute())}
         if hash_it:
-            if (r.embedded is not None and project.source is not None) or r.changed:
-                out["sha256"] = r.sha256  # a changed file keeps the hash its edits were made on: still flagged
+            if r.sha256 is not None or (r.embedded is not None and project.source is not None):
+                # the hash of the file the edits were made on (taken when it was opened): a file changed since
+                # stays flagged, and a missing one is recognised when it is back
+                out["sha256"] = r.sha256
             elif Path(r.path).is_file():
                 out["sha256"] = file_sha256(r.path)
-            elif r.sha256:
-                out["sha256"] = r.sha256  # missing now: keep what it was, so it is recognised when it is back
             member = None
             if r.embedded is not None and project.source is not None:
-                member = f"models/{tag}-{Path(r.path).name}"
+                # the member keeps its name: what the viewer noted of it still names it in the file written
+                member = r.embedded
                 embedded[member] = ("zip", r.embedded)
             elif embed_it:
                 if not Path(r.path).is_file():
                     raise InputError(r.path, "cannot embed this model: file not found")
                 member = f"models/{tag}-{Path(r.path).name}"
+                while member in embedded and embedded[member] != ("file", Path(r.path)):
+                    member = f"models/{tag}x-{Path(member).name}"
                 embedded[member] = ("file", Path(r.path))
             out["embedded"] = member
         return out
@@ -251,8 +252,7 @@ def save_project(path: str | Path, project: Project, embed: bool = False) -> Pat
         "stylize": _jsonable(project.stylize),
         "camera": None if project.camera is None else {**project.camera.to_dict(),
                                                        "target_distance": float(project.camera_distance)},
-        "camera_path": {"duration": float(project.path_duration), "fps": float(project.path_fps),
-                        "loop": bool(project.path_loop), "keyframes": [k.to_dict() for k in project.path_keys]},
+        "camera_path": {k: v for k, v in project.camera_path.to_dict().items() if k != "version"},
         "layout": project.layout,
         "up": np.asarray(project.up, float).tolist(), "world": np.asarray(project.world, float).tolist(),
     }
@@ -359,8 +359,6 @@ class _Reader:
         raise InputError(self.path, problem)
 
     def project(self, data: dict) -> Project:
-        from app.camera_path import CameraPath, _keyframe
-
         models = data.get("models", [])
         if not isinstance(models, list):
             self.fail("'models' must be a list")
@@ -369,7 +367,7 @@ class _Reader:
         p.painting = self.ref(data.get("painting"), "painting")
         p.stylize = self.stylize(data.get("stylize", {}))
         if data.get("camera") is not None:
-            p.camera = _keyframe(data["camera"], 0, self.path)
+            p.camera = parse_keyframe(data["camera"], 0, self.path)
             p.camera_distance = self.number(data["camera"], "target_distance", 1.0, "camera.", positive=True)
         path = data.get("camera_path", {})
         if not isinstance(path, dict):
@@ -377,12 +375,12 @@ class _Reader:
         keys = path.get("keyframes", [])
         if not isinstance(keys, list):
             self.fail("'camera_path.keyframes' must be a list")
-        p.path_keys = [_keyframe(k, i, self.path) for i, k in enumerate(keys)]
-        p.path_duration = self.number(path, "duration", 8.0, "camera_path.", positive=True)
-        p.path_fps = self.number(path, "fps", 30.0, "camera_path.", positive=True)
-        p.path_loop = bool(path.get("loop", False))
-        if p.path_keys:  # a path file's limits: the viewer draws the path and renders it to a video
-            CameraPath(p.path_keys, p.path_duration, p.path_fps, p.path_loop).validate(self.path)
+        p.camera_path = CameraPath([parse_keyframe(k, i, self.path) for i, k in enumerate(keys)],
+                                   self.number(path, "duration", 8.0, "camera_path.", positive=True),
+                                   self.number(path, "fps", 30.0, "camera_path.", positive=True),
+                                   bool(path.get("loop", False)))
+        if p.camera_path.keyframes:  # a path file's limits: the viewer draws the path and renders it to a video
+            p.camera_path.validate(self.path)
         p.layout = data.get("layout", "")
         if not isinstance(p.layout, str):
             self.fail("'layout' must be text")

@@ -178,7 +178,8 @@ def test_a_live_delete_is_taken_by_a_paused_trainer_that_just_densified(tmp_path
     """A snapshot taken in the moment between a densifying step's update and the end of that step (the view takes
     one whenever it likes) holds the new Gaussians: the selection made on it, deleted while the trainer is paused,
     reaches the trainer instead of being refused until the next step."""
-    from app.viewer.app import Paths, ViewerApp
+    from app.viewer.app import ViewerApp
+    from app.viewer.state import Paths
 
     structure = []
 
@@ -199,12 +200,14 @@ def test_a_live_delete_is_taken_by_a_paused_trainer_that_just_densified(tmp_path
             app.session.single_step()
             wait(lambda: trainer.step_count == steps + 1 and app.session.status().state == "paused", 60, "a step")
         n = len(trainer.gaussians)
-        app.edit_live()
-        ed = app.editor
+        from app.viewer.runs import edit_live
+
+        edit_live(app.document, app.session, app.ui)
+        ed = app.document.editor
         assert ed.count == n
         ed.select(np.arange(n) % 2 == 0)
         ed.delete()
-        (what, future, _), = app.training.pending
+        (what, future, _), = app.ui.training.pending
         wait(future.done, 60, "the trainer to take the deletion")
         assert future.exception() is None, future.exception()
         assert len(trainer.gaussians) == n - (n + 1) // 2

@@ -9,7 +9,9 @@ import time
 
 import pytest
 
-from app.viewer.app import Paths, ViewerApp
+from app.viewer import files, runs
+from app.viewer.app import ViewerApp
+from app.viewer.state import Paths
 from tests.viewer_harness import make_demo_scene
 from training.model.ply_io import read_ply
 
@@ -28,20 +30,21 @@ def finish(app: ViewerApp, seconds: float = 300) -> None:
         time.sleep(0.05)
     for item in app.session.poll():
         if getattr(item, "kind", "") == "saved":
-            app.record_saved(item.stage, item.text)
+            runs.record_saved(app.document, app.ui, item.stage, item.text)
 
 
 def test_a_second_reconstruction_keeps_the_first(demo_scene, tmp_path):
     scene_dir, _, _ = demo_scene
     app = ViewerApp(Paths(data=str(scene_dir), out=str(tmp_path / "out")), recon_iters=2, downscale=4)
-    app.open_data(str(scene_dir))
-    app.start_reconstruction()
+    doc, session, ui = app.document, app.session, app.ui
+    files.open_data(doc, session, ui, str(scene_dir))
+    runs.start_reconstruction(doc, session, ui)
     finish(app)
-    first = app.training.base_model
+    first = app.ui.training.base_model
     before = open(first, "rb").read()
-    app.start_reconstruction()
+    runs.start_reconstruction(doc, session, ui)
     finish(app)
-    second = app.training.base_model
+    second = app.ui.training.base_model
     assert first != second and open(first, "rb").read() == before
     assert read_ply(second).means.shape[1] == 3
 
@@ -49,21 +52,22 @@ def test_a_second_reconstruction_keeps_the_first(demo_scene, tmp_path):
 def test_a_second_stylization_keeps_the_edited_model_the_first_started_from(demo_scene, tmp_path):
     scene_dir, style, model = demo_scene
     app = ViewerApp(Paths(model=str(model), data=str(scene_dir), style=str(style), out=str(tmp_path / "out")))
-    app.open_model(str(model))
-    app.open_style(str(style))
-    ed = app.editor
+    doc, session, ui = app.document, app.session, app.ui
+    for open_file, path in ((files.open_model, model), (files.open_data, scene_dir), (files.open_style, style)):
+        open_file(doc, session, ui, str(path))
+    ed = app.document.editor
     ed.select(ed.model.means[:, 0] < 0)
     ed.delete()
     kept_first = ed.count
-    app.start_stylization()
+    runs.start_stylization(doc, session, ui)
     app.session.close()
-    first_original = app.colour.stylized_from
-    ed = app.editor
+    first_original = doc.stylized_from
+    ed = app.document.editor
     ed.select(ed.model.means[:, 1] < 0)
     ed.delete()
     assert ed.count < kept_first
-    app.start_stylization()
+    runs.start_stylization(doc, session, ui)
     app.session.close()
-    assert app.colour.stylized_from != first_original
+    assert doc.stylized_from != first_original
     assert len(read_ply(first_original)) == kept_first  # still the model the first run started from
-    assert len(read_ply(app.colour.stylized_from)) == app.editor.count
+    assert len(read_ply(doc.stylized_from)) == app.document.editor.count

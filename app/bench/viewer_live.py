@@ -65,8 +65,9 @@ def _headless(seconds: float, warmup: int) -> dict:
 def _window(phase: str, seconds: float, warmup: int) -> dict:
     from imgui_bundle import hello_imgui, immapp
 
-    from app.viewer.app import Paths, ViewerApp
+    from app.viewer.app import ViewerApp
     from app.viewer.platform import choose_platform, prepare_glfw
+    from app.viewer.state import Paths
     from assets.demo.assets import demo_assets
 
     app = ViewerApp(Paths(data=str(demo_assets().scene_dir), out="/tmp/splatstyler_bench_viewer"),
@@ -102,14 +103,15 @@ def _latency(seconds: float, warmup: int, n: int = 100_000) -> dict:
     import numpy as np
     from imgui_bundle import hello_imgui, immapp
 
-    from app.viewer.app import Paths, ViewerApp
+    from app.viewer.app import ViewerApp
     from app.viewer.platform import choose_platform, prepare_glfw
+    from app.viewer.state import Paths
     from assets.demo.assets import demo_assets
     from training.core.messages import ModelSnapshot
 
     app = ViewerApp(Paths(data=str(demo_assets().scene_dir), out="/tmp/splatstyler_bench_viewer"),
                     start="reconstruct", recon_iters=100_000, downscale=1)
-    app.training.refresh_s = 1e9  # the view keeps the 100k model; the trainer runs beside it
+    app.ui.training.refresh_s = 1e9  # the view keeps the 100k model; the trainer runs beside it
     rng = np.random.default_rng(0)
     ro = lambda a: (a.setflags(write=False), a)[1]  # noqa: E731
     quats = rng.normal(size=(n, 4)).astype(np.float32)

@@ -177,13 +177,31 @@ class Editor:
         self.extras = {**self.extras, **extras}
         self.version += 1
 
-    def set_extra(self, key: str, value, merge=None) -> None:
+    def set_extra(self, key: str, value, merge=None, was=None) -> None:
         """Another panel's edit (an immutable value) as an undo step. Changes carrying the same ``merge`` token one
-        after another (a slider's drag) make one step: undo goes back to before the drag."""
+        after another (a slider's drag) make one step: undo goes back to before the drag. ``was``: the value the
+        step undoes to, when the editor did not hold it yet (a crop box dragged before it was ever recorded)."""
+        if was is not None:
+            self.extras = {**self.extras, key: was}
         if merge is None or merge != self._merge or not self.undo_stack:
             self._push()
             self._merge = merge
         self.extras = {**self.extras, key: value}
+        self.version += 1
+
+    def step(self, **changes) -> None:
+        """One undo step that sets several of model, selected, hidden, index and extras at once (a move of rows
+        from other files, a model joined to the scene)."""
+        self._push()
+        for name, value in changes.items():
+            setattr(self, name, value)
+        self.version += 1
+
+    def forget_history(self) -> None:
+        """The history starts here (a project was opened: its state is where undo stops)."""
+        self.undo_stack.clear()
+        self.redo_stack.clear()
+        self._merge = None
         self.version += 1
 
     # ------------------------------------------------------------------ history
