@@ -1,5 +1,5 @@
-"""The values the render, video and bench commands take from their command lines: an image size, a background
-colour, and a Gaussian model file read into the numpy arrays renderer_gl draws."""
+"""The values the commands take from their command lines: an image size, a background colour, what a path names (a
+PLY, a .splat or a scene), and a Gaussian model file read into the numpy arrays renderer_gl draws."""
 
 from __future__ import annotations
 
@@ -34,9 +34,27 @@ def parse_background(text: str) -> tuple[float, float, float]:
     return rgb
 
 
+def detect_kind(path: Path) -> str:
+    """"ply" for a file that starts like a PLY, "splat" for a *.splat file, "scene" for anything else."""
+    from training.core.errors import InputError
+
+    if not path.exists():
+        raise InputError(path, "does not exist")
+    if path.is_file():
+        with open(path, "rb") as f:
+            if f.read(4) in (b"ply\n", b"ply\r"):
+                return "ply"
+        if path.suffix.lower() == ".splat":
+            return "splat"
+        if path.suffix.lower() == ".ply":
+            from training.model.ply_io import read_ply
+
+            read_ply(path)  # raises the precise "not a PLY file" error
+    return "scene"
+
+
 def load_model_arrays(path: Path):
     """(means, scales, quats, opacities, sh, sh_degree) as float32 numpy, activated, from a .ply or .splat."""
-    from app.commands.info import detect_kind
     from training.core.errors import InputError
 
     kind = detect_kind(path)

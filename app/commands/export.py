@@ -60,7 +60,7 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 def read_model(path: Path):
     """A .ply or .splat model; InputError for anything else."""
-    from app.commands.info import detect_kind
+    from app.render_inputs import detect_kind
     from training.core.errors import InputError
 
     kind = detect_kind(path)

@@ -14,6 +14,8 @@ import argparse
 import json
 from pathlib import Path
 
+from app.render_inputs import detect_kind
+
 
 def register(sub: argparse._SubParsersAction) -> None:
     parser = sub.add_parser(
@@ -27,25 +29,6 @@ def register(sub: argparse._SubParsersAction) -> None:
     parser.add_argument("--downscale", type=int, default=1, metavar="N",
                         help="scenes: report image sizes and intrinsics as loaded with --downscale N (default 1)")
     parser.set_defaults(func=run)
-
-
-def detect_kind(path: Path) -> str:
-    """"ply" for a file that starts like a PLY, "splat" for a *.splat file, "scene" for anything else."""
-    from training.core.errors import InputError
-
-    if not path.exists():
-        raise InputError(path, "does not exist")
-    if path.is_file():
-        with open(path, "rb") as f:
-            if f.read(4) in (b"ply\n", b"ply\r"):
-                return "ply"
-        if path.suffix.lower() == ".splat":
-            return "splat"
-        if path.suffix.lower() == ".ply":
-            from training.model.ply_io import read_ply
-
-            read_ply(path)  # raises the precise "not a PLY file" error
-    return "scene"
 
 
 def run(args: argparse.Namespace) -> int:

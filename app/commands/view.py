@@ -45,7 +45,7 @@ def check_arguments(args: argparse.Namespace) -> None:
     file, or for a --run that lacks what it needs."""
     from pathlib import Path
 
-    from app.commands.info import detect_kind
+    from app.render_inputs import detect_kind
     from training.core.errors import InputError
 
     if args.model.lower().endswith(".splatproj"):

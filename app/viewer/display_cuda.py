@@ -67,11 +67,11 @@ class CudaDisplay:
         if backend not in ("cuda", "torch", "cpu"):
             raise ValueError(f"backend must be cuda, torch or cpu, got {backend!r}")
         if backend == "cuda":
-            from training.raster.rasterize import _have_gsplat
+            from training.raster.rasterize import have_gsplat
 
             if not torch.cuda.is_available():
                 raise RuntimeError("the CUDA display path needs a CUDA device; torch sees none")
-            if not _have_gsplat():
+            if not have_gsplat():
                 raise RuntimeError("the CUDA display path needs gsplat (pip install -e \".[cuda]\")")
         self.ctx = ctx
         self.backend = backend

@@ -159,12 +159,12 @@ PATH_KEYS = ("path_short_rmse", "path_short_lpips", "path_short_valid", "path_lo
 def render_with_depth(gaussians, cameras, background=(0.0, 0.0, 0.0), backend: str = "auto", device="cpu",
                       cancel=None) -> tuple[list[np.ndarray], list[np.ndarray], list[np.ndarray]]:
     """(images (H, W, 3) in [0, 1], expected depths (H, W, 1), alphas (H, W, 1)) of a model at ``cameras``."""
-    renders = _render_all(gaussians, gaussians.sh, cameras, background, backend, device, mode="RGB+ED",
+    renders = render_all(gaussians, gaussians.sh, cameras, background, backend, device, mode="RGB+ED",
                           cancel=cancel)
     return [img[..., :3] for img, _ in renders], [img[..., 3:] for img, _ in renders], [a for _, a in renders]
 
 
-def _render_all(gaussians, sh, cameras, background, backend, device, mode: str, cancel=None):
+def render_all(gaussians, sh, cameras, background, backend, device, mode: str, cancel=None):
     """[(image (H, W, C), alpha (H, W, 1))] numpy, colours clamped to [0, 1] (not the depth channel)."""
     from training.core.messages import check_cancel
     from training.raster.rasterize import rasterize
@@ -239,15 +239,15 @@ def measure_stylizer(stylizer, lpips=None, taps: VGGTaps | None = None, original
             full[i] = image
         return full
 
-    styl = _render_all(g, g.sh, cameras, *args, mode="RGB+ED", cancel=cancel)
+    styl = render_all(g, g.sh, cameras, *args, mode="RGB+ED", cancel=cancel)
     lpips = _default_lpips(lpips)
-    orig = spread(_render_all(orig_model, orig_model.sh, few, *args, mode="RGB", cancel=cancel))
+    orig = spread(render_all(orig_model, orig_model.sh, few, *args, mode="RGB", cancel=cancel))
     pre = None
     if stylizer.pre_transform is not None:
         mask = stylizer.mask
         moved = keep_unselected(apply_to_gaussians(orig_model, stylizer.pre_transform), orig_model,
                                 None if mask is None else torch.from_numpy(mask))
-        pre = spread(_render_all(moved, moved.sh, few, *args, mode="RGB", cancel=cancel))
+        pre = spread(render_all(moved, moved.sh, few, *args, mode="RGB", cancel=cancel))
     order = measure_order(stylizer)
     out = measure_images([img[..., :3] for img, _ in styl], [img[..., 3:] for img, _ in styl],
                          [a for _, a in styl], orig, pre, cameras, order, stylizer.style_image,
