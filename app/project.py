@@ -59,10 +59,11 @@ from typing import Callable
 
 import numpy as np
 
-from app.camera_path import CameraPath, parse_keyframe
+from app.camera_path import CameraPath
 from training.core.atomic_write import atomic_path
 from training.core.errors import InputError
 from training.model.colour_edit import ColourAdjustment, ColourEdits
+from training.scene.camera import Camera
 
 FORMAT = "splatstyler-project"
 FORMAT_VERSION = 1
@@ -118,7 +119,7 @@ class Project:
     dataset: FileRef | None = None
     painting: FileRef | None = None
     stylize: dict = field(default_factory=dict)  # StylizeConfig fields (stylize_config() builds one)
-    camera: object = None  # app.camera_path.Keyframe or None
+    camera: Camera | None = None  # the view's camera (a pinhole camera) or None
     camera_distance: float = 1.0  # the viewer's orbit centre, this far in front of the camera
     camera_path: CameraPath = field(default_factory=CameraPath)  # the video's path (the Camera path panel's)
     layout: str = ""  # imgui ini text of the dock layout
@@ -367,7 +368,7 @@ class _Reader:
         p.painting = self.ref(data.get("painting"), "painting")
         p.stylize = self.stylize(data.get("stylize", {}))
         if data.get("camera") is not None:
-            p.camera = parse_keyframe(data["camera"], 0, self.path)
+            p.camera = Camera.from_dict(data["camera"], "camera", self.path, name="view")
             p.camera_distance = self.number(data["camera"], "target_distance", 1.0, "camera.", positive=True)
         path = data.get("camera_path", {})
         if not isinstance(path, dict):
@@ -375,7 +376,7 @@ class _Reader:
         keys = path.get("keyframes", [])
         if not isinstance(keys, list):
             self.fail("'camera_path.keyframes' must be a list")
-        p.camera_path = CameraPath([parse_keyframe(k, i, self.path) for i, k in enumerate(keys)],
+        p.camera_path = CameraPath([Camera.from_dict(k, f"keyframe {i}", self.path) for i, k in enumerate(keys)],
                                    self.number(path, "duration", 8.0, "camera_path.", positive=True),
                                    self.number(path, "fps", 30.0, "camera_path.", positive=True),
                                    bool(path.get("loop", False)))

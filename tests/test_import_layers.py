@@ -21,8 +21,8 @@ ROOT = Path(__file__).resolve().parents[1]
 # training packages, bottom to top: a package may import its own modules and those of lower rank
 TRAINING_RANKS = {"core": 0, "scene": 1, "model": 2, "raster": 3, "reconstruct": 4, "stylize": 5, "evaluate": 6}
 GUI_MODULES = ("moderngl", "glfw", "imgui_bundle", "OpenGL", "glcontext")
-# renderer_gl may read these torch-free constant modules and nothing else of the engine: one source of defaults
-RENDERER_MAY_IMPORT = ("training.raster.constants", "training.model.sh_constants")
+# renderer_gl may read these torch-free modules and nothing else of the engine: one source of defaults, one camera
+RENDERER_MAY_IMPORT = ("training.raster.constants", "training.model.sh_constants", "training.scene.camera")
 
 
 def modules(top: str) -> list[Path]:
@@ -250,7 +250,8 @@ def test_the_app_checker_sees_a_circle_a_panel_import_and_a_private_name(tmp_pat
 
 
 @pytest.mark.parametrize("module", ["training.stylize.defaults", "training.raster.constants",
-                                    "training.model.sh_constants", "renderer_gl"])
+                                    "training.model.sh_constants", "training.scene.camera",
+                                    "renderer_gl"])
 def test_light_modules_load_without_torch(module):
     """The CLI's help text and the renderer read these; loading them must not load torch."""
     if not (ROOT / (module.replace(".", "/") + ".py")).exists() and not (ROOT / module).is_dir():

@@ -13,12 +13,13 @@ import pytest
 import torch
 
 import app.project as project_module
-from app.camera_path import CameraPath, Keyframe
+from app.camera_path import CameraPath
 from app.project import FileRef, ModelEntry, Project, file_sha256, open_project, save_project
 from training.core.errors import InputError
 from training.model.colour_edit import ColourAdjustment, ColourEdits
 from training.model.gaussians import Gaussians
 from training.model.ply_io import write_ply
+from training.scene.camera import Camera
 
 
 def model(n=200, degree=1, seed=0) -> Gaussians:
@@ -29,10 +30,10 @@ def model(n=200, degree=1, seed=0) -> Gaussians:
                      sh_degree=degree)
 
 
-def key(x: float) -> Keyframe:
+def key(x: float) -> Camera:
     m = np.eye(4)
     m[:3, 3] = [x, 0.5, 2.0]
-    return Keyframe(m, 500.0, 510.0, 320.0, 180.0, 640, 360)
+    return Camera("keyframe", 640, 360, 500.0, 510.0, 320.0, 180.0, m)
 
 
 def full_project(folder) -> Project:

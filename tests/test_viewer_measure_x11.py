@@ -19,13 +19,12 @@ LINE = (120, 255, 60)  # gestures.PICK_LINE
 def test_x11_measure_line_and_floor_levelling_on_screen(demo_scene, x_server, tmp_path):
     scene_dir, _, model = demo_scene
     found = run_gui(PRELUDE + LOOK + PICKING + f"""
-from app.viewer.selection import project
 from app.viewer.world_edit import distance
 app = ViewerApp(Paths(model={str(model)!r}, data={str(scene_dir)!r}, out=str(OUT / "out")))
 
 def on_screen(points):
     # window coordinates of world points in the view, and the screen offset of the window
-    uv, _ = project(np.array(points), view_camera(app.ui))
+    uv, _ = view_camera(app.ui).project(np.array(points))
     ox, oy = window_origin()
     left, top = app.ui.window.view_rect[:2]
     return [[ox + left + u, oy + top + v] for u, v in uv]

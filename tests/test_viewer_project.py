@@ -8,7 +8,7 @@ from __future__ import annotations
 import numpy as np
 import torch
 
-from app.camera_path import Keyframe, keyframe_from
+from app.camera_path import keyframe_from
 from app.project import save_project
 from app.viewer.app import ViewerApp
 from app.viewer.camera_control import ViewerCamera
@@ -17,6 +17,7 @@ from app.viewer.files import save_project as save_session
 from app.viewer.state import Paths
 from training.model.gaussians import Gaussians
 from training.model.ply_io import write_ply
+from training.scene.camera import Camera
 
 
 def write_model(path, n=150):
@@ -39,7 +40,7 @@ def test_the_viewer_session_comes_back_from_a_project(tmp_path):
     m = np.eye(4)
     m[:3, 3] = [0.0, 0.0, 3.0]
     path = app.document.camera_path
-    path.keyframes = [Keyframe(m, 400.0, 400.0, 320.0, 180.0, 640, 360)]
+    path.keyframes = [Camera("keyframe", 640, 360, 400.0, 400.0, 320.0, 180.0, m)]
     path.duration, path.loop = 5.0, True
     saved = save_session(app.document, app.session, app.ui, str(tmp_path / "s.splatproj"), layout="[Docking]\n")
     again = ViewerApp(Paths(out=str(tmp_path / "out2")))

@@ -13,10 +13,10 @@ from app.camera_path import quat_to_matrix
 from app.viewer.app import ViewerApp
 from app.viewer.files import open_model, open_project, save_project
 from app.viewer.scene_models import snapshot_of
-from app.viewer.selection import Editor, project
+from app.viewer.selection import Editor
 from app.viewer.state import Paths
 from app.world_transform import (VIEWER_UP, cameras_up, level, plane_normal, rotation_between, scale_about,
-                                 transform_camera, transform_snapshot, unproject)
+                                 transform_camera, transform_snapshot)
 from training.model.gaussians import Gaussians
 from training.model.ply_io import read_ply, write_ply
 from training.model.transform import transform_gaussians
@@ -60,8 +60,8 @@ def test_a_moved_camera_sees_the_moved_scene_in_the_same_pixels():
     cam = camera([0.5, -1.0, -6.0], [0.0, 0.0, 0.0])
     m = similarity()
     moved = transform_camera(cam, m)
-    uv, front = project(points, cam)
-    uv2, front2 = project(points @ m[:3, :3].T + m[:3, 3], moved)
+    uv, front = cam.project(points)
+    uv2, front2 = moved.project(points @ m[:3, :3].T + m[:3, 3])
     assert front.all() and front2.all() and np.allclose(uv, uv2, atol=1e-9)
     assert np.allclose(moved.center, m[:3, :3] @ cam.center + m[:3, 3])
 
@@ -69,9 +69,9 @@ def test_a_moved_camera_sees_the_moved_scene_in_the_same_pixels():
 def test_unproject_inverts_projection():
     cam = camera([1.0, -2.0, -5.0], [0.0, 0.3, 0.0])
     p = np.array([0.2, -0.1, 0.4])
-    (u, v), = project(p[None], cam)[0]
+    (u, v), = cam.project(p[None])[0]
     z = (cam.world_to_camera[:3, :3] @ p + cam.world_to_camera[:3, 3])[2]
-    assert np.allclose(unproject(cam, u, v, z), p, atol=1e-12)
+    assert np.allclose(cam.unproject(u, v, z), p, atol=1e-12)
 
 
 def test_level_turns_the_up_direction_onto_the_viewers_up_and_planes_have_normals():

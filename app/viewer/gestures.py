@@ -37,7 +37,7 @@ def view_camera(ui):
 
 def on_screen(ui, points: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Window coordinates of world points, and whether each is in front of the view's camera."""
-    uv, front = sel.project(np.asarray(points, float).reshape(-1, 3), view_camera(ui))
+    uv, front = view_camera(ui).project(points)
     scale = imgui.get_io().display_framebuffer_scale
     x, y = ui.window.view_rect[:2]
     return np.stack([x + uv[:, 0] / scale.x, y + uv[:, 1] / scale.y], axis=1), front

@@ -25,6 +25,7 @@ from app.viewer.scene_models import with_rows
 OPS = ("translate", "rotate", "scale")
 KEYS = {"translate": "G", "rotate": "T", "scale": "Y"}
 gz = imguizmo.im_guizmo
+GL_NEAR, GL_FAR = 0.01, 1000.0  # the gizmo's depth range: it draws over the picture, never clipped by the splats
 
 
 # ------------------------------------------------------------------ matrices
@@ -34,19 +35,6 @@ def _m16(m: np.ndarray):
 
 def _np(m16) -> np.ndarray:
     return np.asarray(m16.values, np.float64).reshape(4, 4, order="F")
-
-
-def view_projection(cam, near: float = 0.01, far: float = 1000.0):
-    """GL view and projection matrices of the project's (OpenCV) camera: x right, y down, z forward becomes GL's
-    x right, y up, looking down -z; the principal point off centre shifts the frustum."""
-    flip = np.diag([1.0, -1.0, -1.0, 1.0])
-    view = flip @ np.asarray(cam.world_to_camera, np.float64)
-    w, h = cam.width, cam.height
-    proj = np.array([[2 * cam.fx / w, 0.0, 1 - 2 * cam.cx / w, 0.0],
-                     [0.0, 2 * cam.fy / h, 2 * cam.cy / h - 1, 0.0],
-                     [0.0, 0.0, -(far + near) / (far - near), -2 * far * near / (far - near)],
-                     [0.0, 0.0, -1.0, 0.0]])
-    return view, proj
 
 
 def _translation(t) -> np.ndarray:
@@ -134,7 +122,7 @@ def view_gizmo(doc, session, ui, hovered: bool) -> None:
     if not st.op:
         return
     cam = view_camera(ui)
-    view, proj = view_projection(cam)
+    view, proj = cam.gl_view_projection(GL_NEAR, GL_FAR)
     x, y, w, h = ui.window.view_rect
     gz.set_drawlist(imgui.get_window_draw_list())
     gz.set_rect(x, y, w, h)

@@ -1,7 +1,7 @@
 """Selections and edits of the model the viewer holds, with undo and redo.
 
 A selection is a boolean mask over the Gaussians, made in screen space (rectangle, brush, lasso: the Gaussians
-whose centres project inside, in front of the camera) or in world space (box, sphere), and combined with the current
+whose centres the camera, a training/scene/camera.py Camera, projects inside, in front of it) or in world space (box, sphere), and combined with the current
 one by a mode: set, add, remove. Edits change what the model is: hide and show (kept, not drawn), delete, crop to a
 box (keep inside or outside). Every edit is a step on the undo stack; undo restores the model exactly.
 
@@ -28,34 +28,22 @@ def combine(current: np.ndarray, picked: np.ndarray, mode: str) -> np.ndarray:
     raise ValueError(f"unknown selection mode {mode!r}; expected one of {', '.join(MODES)}")
 
 
-def project(means: np.ndarray, camera) -> tuple[np.ndarray, np.ndarray]:
-    """Pixel coordinates (N, 2) of the centres seen by ``camera`` (the project's Camera), and whether each is in
-    front of it."""
-    w2c = np.asarray(camera.world_to_camera, dtype=np.float64)
-    pc = means.astype(np.float64) @ w2c[:3, :3].T + w2c[:3, 3]
-    z = pc[:, 2]
-    front = z > 1e-6
-    zs = np.where(front, z, 1.0)
-    uv = np.stack([camera.fx * pc[:, 0] / zs + camera.cx, camera.fy * pc[:, 1] / zs + camera.cy], axis=1)
-    return uv, front
-
-
 def in_rect(means, camera, x0, y0, x1, y1) -> np.ndarray:
-    uv, front = project(means, camera)
+    uv, front = camera.project(means)
     lo_x, hi_x = sorted((x0, x1))
     lo_y, hi_y = sorted((y0, y1))
     return front & (uv[:, 0] >= lo_x) & (uv[:, 0] <= hi_x) & (uv[:, 1] >= lo_y) & (uv[:, 1] <= hi_y)
 
 
 def in_brush(means, camera, x, y, radius) -> np.ndarray:
-    uv, front = project(means, camera)
+    uv, front = camera.project(means)
     return front & ((uv[:, 0] - x) ** 2 + (uv[:, 1] - y) ** 2 <= radius ** 2)
 
 
 def in_lasso(means, camera, polygon) -> np.ndarray:
     """Centres inside the closed polygon (K, 2) of pixel points (even-odd rule)."""
     poly = np.asarray(polygon, dtype=np.float64).reshape(-1, 2)
-    uv, front = project(means, camera)
+    uv, front = camera.project(means)
     if len(poly) < 3:
         return np.zeros(len(means), dtype=bool)
     x, y = uv[:, 0], uv[:, 1]

@@ -16,7 +16,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from app.world_transform import VIEWER_UP, cameras_up, compose, level, plane_normal, scale_about, unproject
+from app.world_transform import VIEWER_UP, cameras_up, compose, level, plane_normal, scale_about
 
 PICK_TOOLS = ("measure", "floor", "fit")  # two points to measure; three floor points; one point to fit around
 PICKS = {"measure": 2, "floor": 3, "fit": 1}
@@ -73,7 +73,7 @@ def pick(ui, camera, x: float, y: float) -> np.ndarray | None:
     if out["alpha"][iy, ix] < MIN_ALPHA or out["depth"][iy, ix] <= 0:
         ui.messages.say("nothing solid under the cursor: pick on the model")
         return None
-    return unproject(camera, ix + 0.5, iy + 0.5, float(out["depth"][iy, ix]))
+    return camera.unproject(ix + 0.5, iy + 0.5, float(out["depth"][iy, ix]))
 
 
 def add_point(tools, point: np.ndarray) -> None:

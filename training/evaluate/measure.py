@@ -167,7 +167,7 @@ def render_with_depth(gaussians, cameras, background=(0.0, 0.0, 0.0), backend: s
 def render_all(gaussians, sh, cameras, background, backend, device, mode: str, cancel=None):
     """[(image (H, W, C), alpha (H, W, 1))] numpy, colours clamped to [0, 1] (not the depth channel)."""
     from training.core.messages import check_cancel
-    from training.raster.rasterize import rasterize
+    from training.raster.rasterize import camera_matrices, rasterize
 
     g = gaussians
     dt = g.means.dtype
@@ -180,8 +180,7 @@ def render_all(gaussians, sh, cameras, background, backend, device, mode: str, c
         for cam in cameras:
             check_cancel(cancel)
             image, alpha, _ = rasterize(means, quats, scales, opacities, sh,
-                                        torch.as_tensor(cam.world_to_camera, dtype=dt, device=device),
-                                        torch.as_tensor(cam.K, dtype=dt, device=device), cam.width, cam.height,
+                                        *camera_matrices(cam, dt, device), cam.width, cam.height,
                                         sh_degree=g.sh_degree, background=bg, render_mode=mode, backend=backend)
             image = image.float().cpu()
             image[..., :3] = image[..., :3].clamp(0, 1)

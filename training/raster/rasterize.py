@@ -29,6 +29,13 @@ RENDER_MODES = {
 BACKENDS = ("auto", "cpu", "cuda", "torch")
 
 
+def camera_matrices(camera, dtype=torch.float32, device=None) -> tuple[torch.Tensor, torch.Tensor]:
+    """``rasterize``'s ``viewmat`` (4, 4) and ``K`` (3, 3) of a pinhole camera (training/scene/camera.py): where the
+    scene's numpy cameras become tensors."""
+    return (torch.as_tensor(camera.world_to_camera, dtype=dtype, device=device),
+            torch.as_tensor(camera.K, dtype=dtype, device=device))
+
+
 @functools.lru_cache(maxsize=None)
 def _have_cpu_kernels() -> bool:
     try:
