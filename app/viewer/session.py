@@ -21,7 +21,7 @@ import threading
 import time
 from collections import deque
 from concurrent.futures import Future
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, fields, replace
 from pathlib import Path
 from typing import Any, Callable
 
@@ -138,15 +138,23 @@ class LiveSession:
         return future
 
     def update_config(self, **changes: Any) -> str | None:
-        """Hand config changes to the running trainer (applied at its next step); the refusal as one line, or
-        None when accepted (or when no trainer runs)."""
+        """Hand settings to the running trainer: it takes them between two steps, on the training thread, into the
+        config its next step reads. They were validated where they entered (a slider's config, a command line);
+        here only what the running trainer cannot take is refused, as one line: a setting it does not have, or one
+        fixed when it started (``FIXED_AT_START``). None when handed over."""
         trainer = self._trainer
-        if trainer is None:
+        if trainer is None or not self.running:
             return "no trainer is running"
-        try:
-            trainer.update_config(**changes)
-        except ValueError as exc:
-            return str(exc)
+        config = trainer.config
+        unknown = sorted(set(changes) - {f.name for f in fields(config)})
+        if unknown:
+            return f"the running {self._status.stage} has no setting {', '.join(unknown)}"
+        fixed = sorted(name for name in changes if name in getattr(trainer, "FIXED_AT_START", ())
+                       and changes[name] != getattr(config, name))
+        if fixed:
+            return (f"{', '.join(fixed)} can only be set before the {self._status.stage} starts (start a new run to "
+                    f"change {'it' if len(fixed) == 1 else 'them'})")
+        self._commands.put(("config", dict(changes), trainer))
         return None
 
     def close(self, timeout: float = 600.0) -> None:
@@ -215,6 +223,10 @@ class LiveSession:
         elif name == "step":
             self._paused = True
             return True
+        elif name == "config":
+            _, changes, trainer = command
+            if trainer is self._trainer:  # settings for a stage that has ended do not reach the next one
+                trainer.config = replace(trainer.config, **changes)
         elif name == "call":
             _, fn, future, trainer, stage = command
             if not future.set_running_or_notify_cancel():

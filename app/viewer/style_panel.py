@@ -19,18 +19,19 @@ RESTART = "fixed while a stylization runs: it shapes the run from its first step
 
 
 def set_stylize(session, ui, **changes) -> None:
-    """A slider moved: to the running stylizer (at its next step), and into the config of the next run."""
-    if stylizing(session):
-        refusal = session.update_config(**changes)
-        if refusal:
-            ui.messages.fail(refusal)
-            return
+    """A slider moved: the settings are validated here, where they enter (StylizeConfig.validate), then handed to
+    the running stylizer (it takes them between two steps) and kept as the next run's."""
     candidate = replace(ui.training.stylize, **changes)
     try:
         candidate.validate()
     except ValueError as exc:
         ui.messages.fail(str(exc))
         return
+    if stylizing(session):
+        refusal = session.update_config(**changes)
+        if refusal:
+            ui.messages.fail(refusal)
+            return
     ui.training.stylize = candidate
     if any(k in changes for k in ("view_order", "virtual_views", "seed")):
         ui.training.order_preview = None

@@ -2,65 +2,16 @@
 
 ``loss, stats = style_loss(render_feats, style_feats)`` with render_feats (1, C, h, w) and style_feats
 (1, C, h2, w2). Parameters are plain attributes that may change between calls (the viewer edits them live).
-CCFT keeps its guide map from one call to the next (the previous view's); ``reset_guide()`` forgets it.
+CCFT keeps its guide map from one call to the next (the previous view's); ``reset_guide()`` forgets it. CCFT's own is
+in ``training.stylize.ccft`` beside its formula.
 """
 
 from __future__ import annotations
 
 import torch
 
-from training.stylize import defaults
-from training.stylize.ccft import DEFAULT_CHUNK_ELEMENTS, column_statistics, ccft_loss, l2_normalise
-
-
-def _flatten(feats: torch.Tensor, what: str) -> torch.Tensor:
-    """(1, C, h, w) -> (h*w, C)."""
-    if feats.dim() != 4 or feats.shape[0] != 1:
-        raise ValueError(f"{what} features must be (1, C, h, w), got {tuple(feats.shape)}")
-    return feats[0].flatten(1).t()
-
-
-class CCFTStyleLoss:
-    """Capacity-controlled feature transport with cross-view guidance (``training.stylize.ccft``).
-
-    stats: loss, utilisation, column_entropy, column_entropy_normalised, reachable_fraction, and the timings
-    (seconds) similarity_topk_s, cost_s, sinkhorn_s, guide_s."""
-
-    name = "ccft"
-
-    def __init__(self, k: int = defaults.K, epsilon: float = defaults.EPSILON, tau: float = defaults.TAU,
-                 lambda_guide: float = defaults.LAMBDA_GUIDE, iters: int = defaults.SINKHORN_ITERS, chunk_elements: int = DEFAULT_CHUNK_ELEMENTS):
-        self.k = k
-        self.epsilon = epsilon
-        self.tau = tau
-        self.lambda_guide = lambda_guide
-        self.iters = iters
-        self.chunk_elements = chunk_elements
-        self.guide: torch.Tensor | None = None  # (m, C) from the previous call
-        self.last_result = None  # the last CCFTResult (plan, column mass) for reports
-
-    def reset_guide(self) -> None:
-        self.guide = None
-
-    def __call__(self, render_feats: torch.Tensor, style_feats: torch.Tensor) -> tuple[torch.Tensor, dict]:
-        X = _flatten(render_feats, "render")
-        Y = _flatten(style_feats, "style").detach()
-        guide = self.guide
-        if guide is not None and (guide.shape != Y.shape or guide.device != Y.device):
-            guide = None  # the style features changed size (another resolution): the old guide does not apply
-        result = ccft_loss(X, Y, guide, k=self.k, epsilon=self.epsilon, tau=self.tau,
-                           lambda_guide=self.lambda_guide, iters=self.iters, chunk_elements=self.chunk_elements)
-        self.guide = result.guide
-        self.last_result = result
-        stats = {
-            "loss": float(result.loss.detach()),
-            "utilisation": result.utilisation,
-            "column_entropy": result.column_entropy,
-            "column_entropy_normalised": result.column_entropy_normalised,
-            "reachable_fraction": float(result.reachable.to(torch.float64).mean()),
-        }
-        stats.update({f"{k}_s": v for k, v in result.timings.items()})
-        return result.loss, stats
+from training.stylize.ccft import DEFAULT_CHUNK_ELEMENTS, CCFTStyleLoss, column_statistics, flatten_features, \
+    l2_normalise
 
 
 @torch.no_grad()
@@ -93,8 +44,8 @@ class NNFMStyleLoss:
         pass
 
     def __call__(self, render_feats: torch.Tensor, style_feats: torch.Tensor) -> tuple[torch.Tensor, dict]:
-        Xn = l2_normalise(_flatten(render_feats, "render"))
-        Yn = l2_normalise(_flatten(style_feats, "style").detach())
+        Xn = l2_normalise(flatten_features(render_feats, "render"))
+        Yn = l2_normalise(flatten_features(style_feats, "style").detach())
         nn_idx = nearest_style_indices(Xn.detach(), Yn, self.chunk_elements)
         loss = (1.0 - (Xn * Yn[nn_idx]).sum(dim=1)).mean()
         m = Yn.shape[0]
@@ -128,8 +79,8 @@ class GramStyleLoss:
         pass
 
     def __call__(self, render_feats: torch.Tensor, style_feats: torch.Tensor) -> tuple[torch.Tensor, dict]:
-        G_r = gram_matrix(_flatten(render_feats, "render"))
-        G_s = gram_matrix(_flatten(style_feats, "style").detach())
+        G_r = gram_matrix(flatten_features(render_feats, "render"))
+        G_s = gram_matrix(flatten_features(style_feats, "style").detach())
         loss = ((G_r - G_s) ** 2).mean()
         return loss, {"loss": float(loss.detach())}
 
