@@ -481,7 +481,10 @@ class Document:
         self.carried, self.project_source = [], project.source
         self.original = None
         for entry in project.models:
-            why = self._join(entry, project, models_folder, opened.problems)
+            try:
+                why = self._join(entry, project, models_folder, opened.problems)
+            except InputError as exc:  # its file cannot be read (a damaged member, not a model): the rest opens
+                why = exc.problem
             if why is not None:
                 self.carried.append(entry)
                 opened.problems.append(f"{entry.file.path}: model '{entry.name}' is in the project but not shown "

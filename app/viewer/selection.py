@@ -66,7 +66,7 @@ def in_sphere(means, center, radius) -> np.ndarray:
 
 
 @dataclass
-class EditState:
+class UndoEntry:
     """What undo restores: the model and which of its Gaussians are selected and hidden."""
 
     model: object  # ModelSnapshot
@@ -84,8 +84,8 @@ class Editor:
     selected: np.ndarray = None
     hidden: np.ndarray = None
     index: np.ndarray = None  # for each current Gaussian, its row in the model the editor started from
-    undo_stack: list[EditState] = field(default_factory=list)
-    redo_stack: list[EditState] = field(default_factory=list)
+    undo_stack: list[UndoEntry] = field(default_factory=list)
+    redo_stack: list[UndoEntry] = field(default_factory=list)
     version: int = 0  # bumped by every change the view must show
     on_keep: object = None  # called with each keep-mask (and the structure it was made on): a running trainer
     structure_version: int = 0  # the trainer's structure the rows refer to, counting the keeps handed to it
@@ -193,10 +193,10 @@ class Editor:
         self.version += 1
 
     # ------------------------------------------------------------------ history
-    def _state(self) -> EditState:
-        return EditState(self.model, self.selected.copy(), self.hidden.copy(), self.index, dict(self.extras))
+    def _state(self) -> UndoEntry:
+        return UndoEntry(self.model, self.selected.copy(), self.hidden.copy(), self.index, dict(self.extras))
 
-    def _restore(self, state: EditState) -> None:
+    def _restore(self, state: UndoEntry) -> None:
         self.model, self.selected, self.hidden, self.index = state.model, state.selected, state.hidden, state.index
         self.extras = dict(state.extras)
         self._merge = None
