@@ -24,7 +24,7 @@ from app.viewer.document import Document
 from app.viewer.gizmo import gizmo_keys, sync_crop_box
 from app.viewer.layout import configure, help_overlay
 from app.viewer.path_video import step_video
-from app.viewer.platform import choose_platform
+from app.viewer.platform import choose_platform, prepare_glfw
 from app.viewer.session import LiveSession, SessionMessage
 from app.viewer.state import Paths, TrainingState, Ui
 from app.viewer.view3d import View3D
@@ -457,8 +457,6 @@ def run(app: ViewerApp) -> int | None:
     import signal
 
     from imgui_bundle import hello_imgui, immapp
-
-    from app.viewer.platform import prepare_glfw
 
     prepare_glfw(choose_platform())
     # pycolmap's glog installs its own SIGTERM handler (a stack dump, no save) when it is first imported, which

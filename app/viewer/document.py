@@ -31,7 +31,7 @@ import numpy as np
 from app.camera_path import CameraPath
 from app.project import FileRef, ModelEntry, Project, extract_member, file_sha256, open_project
 from app.viewer.scene_models import SceneModels, appended, snapshot_arrays, snapshot_of, with_rows
-from app.viewer.selection import Editor
+from app.viewer.selection import Editor, subset
 from training.core.errors import InputError
 from training.model.colour_edit import ColourEdits
 
@@ -533,8 +533,6 @@ class Document:
             self.models.files[0].original = _copy(entry.original)
             ed = self.editor
             if entry.kept is not None:
-                from app.viewer.selection import subset
-
                 ed.model, ed.index = subset(ed.model, rows), rows.copy()
             ed.selected, ed.hidden = selected.copy(), hidden.copy()
             self._open_with_world(project.world)  # the scale and up axis the measure tools set

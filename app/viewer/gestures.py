@@ -15,6 +15,7 @@ from imgui_bundle import imgui
 from app.viewer import select_tools as st
 from app.viewer import selection as sel
 from app.viewer import world_edit as we
+from app.viewer.colour_view import displayed
 
 VIEW_TOOLS = ("surface brush", "colour pick")  # the tools of the Edit panel's list that select_tools.py serves
 PICK_LINE = imgui.IM_COL32(120, 255, 60, 255)  # green: apart from selection, frustums and paths (orange, yellow, cyan)
@@ -84,8 +85,6 @@ def select_by_gesture(doc, session, ui, points: list[tuple[float, float]]) -> No
 
 def shown_sh(doc, session) -> np.ndarray:
     """The colours the view shows for the editor's rows (after the colour edits)."""
-    from app.viewer.colour_view import displayed
-
     return displayed(doc, session, doc.editor.model).sh
 
 

@@ -9,6 +9,8 @@ from pathlib import Path
 
 import numpy as np
 
+from app.viewer.stages import reconstruct_stage, stylize_stage
+
 
 def next_run_dir(out: Path, name: str = "stylized") -> Path:
     """``out/stylized`` for the first stylization, then ``stylized_2``, ``stylized_3``...: each run keeps its own
@@ -33,8 +35,6 @@ def record_saved(doc, ui, stage: str, path: str) -> None:
 
 
 def start_reconstruction(doc, session, ui, then_stylize: bool = False) -> None:
-    from app.viewer.stages import reconstruct_stage, stylize_stage
-
     if doc.dataset is None:
         raise ValueError("open a dataset first (COLMAP folder or transforms.json)")
     t = ui.training
@@ -54,8 +54,6 @@ def start_reconstruction(doc, session, ui, then_stylize: bool = False) -> None:
 
 
 def start_stylization(doc, session, ui) -> None:
-    from app.viewer.stages import stylize_stage
-
     t = ui.training
     if doc.dataset is None:
         raise ValueError("open the dataset the model was reconstructed from")

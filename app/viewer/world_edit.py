@@ -16,6 +16,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from app.viewer.camera_control import ViewerCamera
 from app.world_transform import VIEWER_UP, cameras_up, compose, level, plane_normal, scale_about
 
 PICK_TOOLS = ("measure", "floor", "fit")  # two points to measure; three floor points; one point to fit around
@@ -119,8 +120,6 @@ def level_to(doc, session, ui, up: np.ndarray, what: str) -> None:
     view = ui.view
     cam = view.camera if view is not None else None
     if cam is not None:
-        from app.viewer.camera_control import ViewerCamera
-
         view.camera = ViewerCamera.looking_at(cam.position, cam.target, up=VIEWER_UP, fov_y_degrees=cam.fov_y_degrees)
         view.moved()
     ui.messages.say(f"levelled the scene: {what} is up now")
