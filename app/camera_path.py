@@ -1,6 +1,6 @@
-"""Camera paths for videos: keyframes (pose + intrinsics), a smooth path through them, ready-made paths (an orbit, the
-dataset's trajectory), and JSON files. numpy only, no torch (the look-at and orbit maths are renderer_gl.camera's):
-the viewer's keyframe panel and ``splatstyler video`` share it.
+"""Camera paths for videos: keyframes (pinhole cameras, training/scene/camera.py), a smooth path through them,
+ready-made paths (an orbit, the dataset's trajectory), and JSON files; the viewer's Camera path panel, a project and
+``splatstyler video`` share it. The look-at and orbit maths are renderer_gl.camera's.
 
 Conventions: a keyframe's ``world_to_camera`` is a 4x4 in OpenCV axes (x right, y down, z forward), as everywhere in
 this project; intrinsics are pixels for the keyframe's own ``width`` x ``height`` and are rescaled when frames are
@@ -26,52 +26,19 @@ from pathlib import Path
 import numpy as np
 
 from renderer_gl.camera import look_at, orbit  # noqa: F401  (look_at is part of this module's interface)
-from training.model.transform import matrix_to_quat  # one Shepperd conversion for paths and model transforms
 from training.core.atomic_write import atomic_open
 from training.core.errors import InputError
+from training.model.transform import matrix_to_quat  # one Shepperd conversion for paths and model transforms
+from training.scene.camera import Camera, camera_of
 
 FORMAT_VERSION = 1
 MAX_FPS = 240.0
 MAX_FRAMES = 100_000
-ORTHONORMAL_TOLERANCE = 1e-4
 
 
-@dataclass(frozen=True)
-class Keyframe:
-    """A camera: pose and pinhole intrinsics. Camera-like for renderer_gl (``renderer_gl.view(keyframe)``)."""
-
-    world_to_camera: np.ndarray
-    fx: float
-    fy: float
-    cx: float
-    cy: float
-    width: int
-    height: int
-
-    @property
-    def rotation(self) -> np.ndarray:
-        """(3, 3) camera-to-world rotation."""
-        return self.world_to_camera[:3, :3].T
-
-    @property
-    def center(self) -> np.ndarray:
-        r, t = self.world_to_camera[:3, :3], self.world_to_camera[:3, 3]
-        return -r.T @ t
-
-    def resized(self, width: int, height: int) -> "Keyframe":
-        sx, sy = width / self.width, height / self.height
-        return Keyframe(self.world_to_camera, self.fx * sx, self.fy * sy, self.cx * sx, self.cy * sy, width, height)
-
-    def to_dict(self) -> dict:
-        return {"world_to_camera": np.asarray(self.world_to_camera, dtype=float).tolist(), "fx": float(self.fx),
-                "fy": float(self.fy), "cx": float(self.cx), "cy": float(self.cy), "width": int(self.width),
-                "height": int(self.height)}
-
-
-def keyframe_from(camera) -> Keyframe:
-    """A keyframe from any camera-like object (a dataset Camera, a renderer_gl View, the viewer's current view)."""
-    return Keyframe(np.array(camera.world_to_camera, dtype=np.float64), float(camera.fx), float(camera.fy),
-                    float(camera.cx), float(camera.cy), int(camera.width), int(camera.height))
+def keyframe_from(camera) -> Camera:
+    """A keyframe (a copy) from any camera-like object (a dataset camera, the viewer's current view)."""
+    return camera_of(camera, "keyframe")
 
 
 def pose(center, rotation_c2w) -> np.ndarray:
@@ -121,14 +88,14 @@ def catmull_rom(p0, p1, p2, p3, t: float, alpha: float = 0.5) -> np.ndarray:
 
 
 # ------------------------------------------------------------------------------------------- the path
-def _relative_intrinsics(k: Keyframe) -> np.ndarray:
+def _relative_intrinsics(k: Camera) -> np.ndarray:
     """fx, fy, cx, cy over the image size: what stays the same when a view is rendered at another size."""
     return np.array([k.fx / k.width, k.fy / k.height, k.cx / k.width, k.cy / k.height])
 
 
 @dataclass
 class CameraPath:
-    keyframes: list[Keyframe] = field(default_factory=list)
+    keyframes: list[Camera] = field(default_factory=list)
     duration: float = 8.0  # seconds
     fps: float = 30.0
     loop: bool = False
@@ -144,6 +111,9 @@ class CameraPath:
             raise InputError(name, f"{self.duration:g} s at {self.fps:g} fps is {self.frame_count} frames; "
                                    f"1..{MAX_FRAMES} are allowed")
 
+    def copy(self) -> "CameraPath":
+        return CameraPath(list(self.keyframes), self.duration, self.fps, self.loop)
+
     @property
     def frame_count(self) -> int:
         return max(1, int(round(self.duration * self.fps)))
@@ -152,7 +122,7 @@ class CameraPath:
         n = len(self.keyframes)
         return n if self.loop and n > 1 else max(n - 1, 0)
 
-    def camera_at(self, t: float, width: int | None = None, height: int | None = None) -> Keyframe:
+    def camera_at(self, t: float, width: int | None = None, height: int | None = None) -> Camera:
         """The camera at ``t`` seconds (clamped to the path), at ``width`` x ``height`` (default: the first
         keyframe's size)."""
         keys = self.keyframes
@@ -179,7 +149,7 @@ class CameraPath:
         a, b = key(i), key(i + 1)
         rot = quat_to_matrix(slerp(matrix_to_quat(a.rotation), matrix_to_quat(b.rotation), u))
         rel = (1 - u) * _relative_intrinsics(a) + u * _relative_intrinsics(b)
-        return Keyframe(pose(centre, rot), rel[0] * w, rel[1] * h, rel[2] * w, rel[3] * h, w, h)
+        return Camera("path", w, h, rel[0] * w, rel[1] * h, rel[2] * w, rel[3] * h, pose(centre, rot))
 
     def frame_times(self) -> np.ndarray:
         """Seconds of each frame: the path's start to its end, or, for a loop, up to one step before the start."""
@@ -188,7 +158,7 @@ class CameraPath:
             return np.arange(count) * (self.duration / count)
         return np.linspace(0.0, self.duration, count)
 
-    def cameras(self, width: int | None = None, height: int | None = None) -> list[Keyframe]:
+    def cameras(self, width: int | None = None, height: int | None = None) -> list[Camera]:
         """Every frame's camera."""
         return [self.camera_at(float(t), width, height) for t in self.frame_times()]
 
@@ -212,7 +182,7 @@ class CameraPath:
         keys = data.get("keyframes")
         if not isinstance(keys, list) or not keys:
             raise InputError(name, "'keyframes' must be a non-empty list")
-        path = cls([_keyframe(k, i, name) for i, k in enumerate(keys)],
+        path = cls([Camera.from_dict(k, f"keyframe {i}", name) for i, k in enumerate(keys)],
                    duration=_number(data, "duration", 8.0, name), fps=_number(data, "fps", 30.0, name),
                    loop=bool(data.get("loop", False)))
         path.validate(name)
@@ -237,34 +207,6 @@ def _number(data: dict, key: str, default, name) -> float:
     return float(value)
 
 
-def _keyframe(k, i: int, name) -> Keyframe:
-    where = f"keyframe {i}"
-    if not isinstance(k, dict):
-        raise InputError(name, f"{where} is not an object")
-    try:
-        m = np.array(k["world_to_camera"], dtype=np.float64)
-    except KeyError:
-        raise InputError(name, f"{where} has no 'world_to_camera'") from None
-    except (TypeError, ValueError):
-        raise InputError(name, f"{where}: 'world_to_camera' is not a 4x4 matrix of numbers") from None
-    if m.shape != (4, 4) or not np.isfinite(m).all():
-        raise InputError(name, f"{where}: 'world_to_camera' must be a finite 4x4 matrix, got shape {m.shape}")
-    r = m[:3, :3]
-    if (np.abs(r @ r.T - np.eye(3)).max() > ORTHONORMAL_TOLERANCE or abs(np.linalg.det(r) - 1) > ORTHONORMAL_TOLERANCE
-            or np.abs(m[3] - [0, 0, 0, 1]).max() > 0):
-        raise InputError(name, f"{where}: 'world_to_camera' is not a rigid transform (rotation and translation)")
-    values = {key: _number(k, key, None, name) if key in k else None for key in ("fx", "fy", "cx", "cy")}
-    missing = [key for key in ("fx", "fy", "cx", "cy", "width", "height") if key not in k]
-    if missing:
-        raise InputError(name, f"{where} lacks {', '.join(missing)}")
-    w, h = k["width"], k["height"]
-    if not all(isinstance(v, int) and not isinstance(v, bool) and 1 <= v <= 16384 for v in (w, h)):
-        raise InputError(name, f"{where}: width and height must be whole numbers 1..16384, got {w!r}x{h!r}")
-    if values["fx"] <= 0 or values["fy"] <= 0:
-        raise InputError(name, f"{where}: fx and fy must be positive")
-    return Keyframe(m, values["fx"], values["fy"], values["cx"], values["cy"], w, h)
-
-
 # ------------------------------------------------------------------------------------------- ready-made paths
 def orbit_path(center, radius: float, up, width: int = 640, height: int = 360, fov_deg: float = 50.0,
                elevation_deg: float = 20.0, start=None, seconds: float = 8.0, fps: float = 30.0,
@@ -272,7 +214,7 @@ def orbit_path(center, radius: float, up, width: int = 640, height: int = 360, f
     """A loop around ``center`` at ``radius``, raised ``elevation_deg`` above the plane perpendicular to ``up``,
     always looking at the centre; ``start`` (a world direction from the centre) places the first keyframe."""
     f = 0.5 * width / math.tan(math.radians(fov_deg) / 2)
-    keys = [Keyframe(m, f, f, width / 2, height / 2, width, height)
+    keys = [Camera("keyframe", width, height, f, f, width / 2, height / 2, m)
             for m in orbit(center, radius, keyframes, up, elevation_deg=elevation_deg, start=start)]
     return CameraPath(keys, duration=seconds, fps=fps, loop=True)
 

@@ -50,16 +50,20 @@ import io
 import json
 import math
 import os
+import shutil
 import zipfile
+import zlib
 from dataclasses import dataclass, field, fields
 from pathlib import Path
 from typing import Callable
 
 import numpy as np
 
+from app.camera_path import CameraPath
 from training.core.atomic_write import atomic_path
 from training.core.errors import InputError
 from training.model.colour_edit import ColourAdjustment, ColourEdits
+from training.scene.camera import Camera
 
 FORMAT = "splatstyler-project"
 FORMAT_VERSION = 1
@@ -68,6 +72,13 @@ MANIFEST = "project.json"
 # version n -> a function giving the version n+1 manifest; a new version adds its step here
 MIGRATIONS: dict[int, Callable[[dict], dict]] = {}
 _HASH_CHUNK = 1 << 20
+# what a member may inflate to: a manifest is settings and keyframes (kilobytes); an array has a row per Gaussian,
+# and no scene has 100 million of them. Checked before a member is inflated (a zip bomb is refused unread); zipfile
+# itself stops a member at the size its header declares.
+MAX_MANIFEST_BYTES = 64 << 20
+MAX_ARRAY_ROWS = 100_000_000
+# what reading a damaged member raises: a checksum or deflate error, a member cut short
+_ZIP_ERRORS = (zipfile.BadZipFile, zlib.error, EOFError, OSError, ValueError)
 
 
 # --------------------------------------------------------------------------------------------- the project
@@ -108,12 +119,9 @@ class Project:
     dataset: FileRef | None = None
     painting: FileRef | None = None
     stylize: dict = field(default_factory=dict)  # StylizeConfig fields (stylize_config() builds one)
-    camera: object = None  # app.camera_path.Keyframe or None
+    camera: Camera | None = None  # the view's camera (a pinhole camera) or None
     camera_distance: float = 1.0  # the viewer's orbit centre, this far in front of the camera
-    path_keys: list = field(default_factory=list)  # app.camera_path.Keyframe
-    path_duration: float = 8.0
-    path_fps: float = 30.0
-    path_loop: bool = False
+    camera_path: CameraPath = field(default_factory=CameraPath)  # the video's path (the Camera path panel's)
     layout: str = ""  # imgui ini text of the dock layout
     up: np.ndarray = field(default_factory=lambda: np.array([0.0, -1.0, 0.0]))
     world: np.ndarray = field(default_factory=lambda: np.eye(4))  # similarity: up axis and scale
@@ -132,14 +140,34 @@ class Project:
         if ref.embedded is not None and self.source is not None:
             import tempfile
 
-            with zipfile.ZipFile(self.source) as z, tempfile.TemporaryDirectory() as tmp:
+            with tempfile.TemporaryDirectory() as tmp:
                 target = Path(tmp) / Path(ref.embedded).name
-                target.write_bytes(z.read(ref.embedded))
+                extract_member(self.source, ref.embedded, target)
                 return read_model(target)
         if ref.missing:
             raise InputError(ref.path, "model file not found")
         return read_model(ref.path)
 
+
+
+def extract_member(source: Path, member: str, target: Path) -> Path:
+    """Copy the project's member (an embedded model) to the file ``target``, streamed (a model may be larger than
+    the memory) and atomically; InputError naming the project when the member is damaged."""
+    from training.core.atomic_write import atomic_open
+
+    try:
+        with zipfile.ZipFile(source) as z, z.open(member) as src, atomic_open(target, "wb") as dst:
+            shutil.copyfileobj(src, dst, _HASH_CHUNK)
+    except KeyError:
+        raise InputError(source, f"embedded model {member} is not in the project") from None
+    except _ZIP_ERRORS as exc:
+        raise InputError(source, f"embedded model {member} cannot be read ({_first_line(exc)})") from None
+    return target
+
+
+def _first_line(exc: BaseException) -> str:
+    text = str(exc).strip()
+    return text.splitlines()[0] if text else type(exc).__name__
 
 
 def file_sha256(path: str | Path) -> str:
@@ -152,10 +180,10 @@ def file_sha256(path: str | Path) -> str:
 
 # --------------------------------------------------------------------------------------------- saving
 def save_project(path: str | Path, project: Project, embed: bool = False) -> Path:
-    """Write ``project`` to ``path`` (``.splatproj`` added when missing) atomically. Each model's hash is taken
-    from the file as it is now (the edits refer to those rows), except for a file opened as missing or changed,
-    which keeps its recorded hash (so it is still recognised, or still flagged); ``embed`` copies the model files
-    into the project (models already embedded stay embedded). Returns the path written."""
+    """Write ``project`` to ``path`` (``.splatproj`` added when missing) atomically. Each model's hash is the one
+    its reference carries (taken when the file was opened: the edits refer to those rows, so a file rewritten
+    since is flagged when the project opens), else the file's as it is now; ``embed`` copies the model files into
+    the project (models already embedded stay embedded, under the same member name). Returns the path written."""
     path = Path(path)
     if path.suffix != SUFFIX:
         path = path.with_name(path.name + SUFFIX)
@@ -168,20 +196,23 @@ def save_project(path: str | Path, project: Project, embed: bool = False) -> Pat
             return None
         out = {"path": _relative(r.path, folder), "abs_path": str(Path(r.path).absolute())}
         if hash_it:
-            if (r.embedded is not None and project.source is not None) or r.changed:
-                out["sha256"] = r.sha256  # a changed file keeps the hash its edits were made on: still flagged
+            if r.sha256 is not None or (r.embedded is not None and project.source is not None):
+                # the hash of the file the edits were made on (taken when it was opened): a file changed since
+                # stays flagged, and a missing one is recognised when it is back
+                out["sha256"] = r.sha256
             elif Path(r.path).is_file():
                 out["sha256"] = file_sha256(r.path)
-            elif r.sha256:
-                out["sha256"] = r.sha256  # missing now: keep what it was, so it is recognised when it is back
             member = None
             if r.embedded is not None and project.source is not None:
-                member = f"models/{tag}-{Path(r.path).name}"
+                # the member keeps its name: what the viewer noted of it still names it in the file written
+                member = r.embedded
                 embedded[member] = ("zip", r.embedded)
             elif embed_it:
                 if not Path(r.path).is_file():
                     raise InputError(r.path, "cannot embed this model: file not found")
                 member = f"models/{tag}-{Path(r.path).name}"
+                while member in embedded and embedded[member] != ("file", Path(r.path)):
+                    member = f"models/{tag}x-{Path(member).name}"
                 embedded[member] = ("file", Path(r.path))
             out["embedded"] = member
         return out
@@ -214,8 +245,7 @@ def save_project(path: str | Path, project: Project, embed: bool = False) -> Pat
         "stylize": _jsonable(project.stylize),
         "camera": None if project.camera is None else {**project.camera.to_dict(),
                                                        "target_distance": float(project.camera_distance)},
-        "camera_path": {"duration": float(project.path_duration), "fps": float(project.path_fps),
-                        "loop": bool(project.path_loop), "keyframes": [k.to_dict() for k in project.path_keys]},
+        "camera_path": {k: v for k, v in project.camera_path.to_dict().items() if k != "version"},
         "layout": project.layout,
         "up": np.asarray(project.up, float).tolist(), "world": np.asarray(project.world, float).tolist(),
     }
@@ -230,9 +260,16 @@ def save_project(path: str | Path, project: Project, embed: bool = False) -> Pat
                 # models are stored, not deflated: PLY floats barely compress and are large
                 if kind == "file":
                     z.write(src, member, compress_type=zipfile.ZIP_STORED)
-                else:
-                    with zipfile.ZipFile(project.source) as old:
-                        z.writestr(zipfile.ZipInfo(member), old.read(src), compress_type=zipfile.ZIP_STORED)
+                else:  # streamed from the project it was opened from: a model may be larger than the memory
+                    info = zipfile.ZipInfo(member)
+                    info.compress_type = zipfile.ZIP_STORED
+                    try:
+                        with zipfile.ZipFile(project.source) as old, old.open(src) as fin, \
+                                z.open(info, "w", force_zip64=True) as fout:
+                            shutil.copyfileobj(fin, fout, _HASH_CHUNK)
+                    except _ZIP_ERRORS as exc:
+                        raise InputError(project.source, f"embedded model {src} cannot be read "
+                                                         f"({_first_line(exc)})") from None
     return path
 
 
@@ -264,9 +301,18 @@ def open_project(path: str | Path, check_hashes: bool = True) -> tuple[Project, 
         raise InputError(path, "not a splatstyler project (not a zip file)") from None
     with z:
         try:
-            data = json.loads(z.read(MANIFEST))
+            info = z.getinfo(MANIFEST)
         except KeyError:
             raise InputError(path, f"not a splatstyler project (no {MANIFEST} inside)") from None
+        if info.file_size > MAX_MANIFEST_BYTES:
+            raise InputError(path, f"{MANIFEST} would inflate to {info.file_size:,} bytes; a project's is at most "
+                                   f"{MAX_MANIFEST_BYTES:,}")
+        try:
+            raw = z.read(info)
+        except _ZIP_ERRORS as exc:
+            raise InputError(path, f"{MANIFEST} cannot be read ({_first_line(exc)})") from None
+        try:
+            data = json.loads(raw)
         except (ValueError, UnicodeDecodeError) as exc:
             raise InputError(path, f"{MANIFEST} is not valid JSON ({str(exc).splitlines()[0]})") from None
         reader = _Reader(path, z, check_hashes)
@@ -306,8 +352,6 @@ class _Reader:
         raise InputError(self.path, problem)
 
     def project(self, data: dict) -> Project:
-        from app.camera_path import _keyframe
-
         models = data.get("models", [])
         if not isinstance(models, list):
             self.fail("'models' must be a list")
@@ -316,7 +360,7 @@ class _Reader:
         p.painting = self.ref(data.get("painting"), "painting")
         p.stylize = self.stylize(data.get("stylize", {}))
         if data.get("camera") is not None:
-            p.camera = _keyframe(data["camera"], 0, self.path)
+            p.camera = Camera.from_dict(data["camera"], "camera", self.path, name="view")
             p.camera_distance = self.number(data["camera"], "target_distance", 1.0, "camera.", positive=True)
         path = data.get("camera_path", {})
         if not isinstance(path, dict):
@@ -324,10 +368,12 @@ class _Reader:
         keys = path.get("keyframes", [])
         if not isinstance(keys, list):
             self.fail("'camera_path.keyframes' must be a list")
-        p.path_keys = [_keyframe(k, i, self.path) for i, k in enumerate(keys)]
-        p.path_duration = self.number(path, "duration", 8.0, "camera_path.", positive=True)
-        p.path_fps = self.number(path, "fps", 30.0, "camera_path.", positive=True)
-        p.path_loop = bool(path.get("loop", False))
+        p.camera_path = CameraPath([Camera.from_dict(k, f"keyframe {i}", self.path) for i, k in enumerate(keys)],
+                                   self.number(path, "duration", 8.0, "camera_path.", positive=True),
+                                   self.number(path, "fps", 30.0, "camera_path.", positive=True),
+                                   bool(path.get("loop", False)))
+        if p.camera_path.keyframes:  # a path file's limits: the viewer draws the path and renders it to a video
+            p.camera_path.validate(self.path)
         p.layout = data.get("layout", "")
         if not isinstance(p.layout, str):
             self.fail("'layout' must be text")
@@ -371,16 +417,30 @@ class _Reader:
         if not isinstance(member, str):
             self.fail(f"'{where}' must name an array member, got {member!r}")
         try:
-            a = np.load(io.BytesIO(self.z.read(member)), allow_pickle=False)
+            info = self.z.getinfo(member)
         except KeyError:
             self.fail(f"'{where}' names {member}, which is not in the project")
-        except (ValueError, OSError) as exc:
-            self.fail(f"{member} is not a readable .npy array ({exc})")
-        ok = a.dtype == bool if dtype == "bool" else a.dtype.kind in "iu"
-        if a.ndim != 1 or not ok:
-            self.fail(f"{member} must be a 1-D {dtype} array, got {a.dtype} {a.shape}")
-        if length is not None and len(a) != length:
-            self.fail(f"{member} has {len(a)} rows, expected {length}")
+        fmt = np.lib.format
+        try:
+            with self.z.open(info) as f:
+                # the header first: the array's type and length are checked before anything is inflated
+                version = fmt.read_magic(f)
+                read_header = fmt.read_array_header_1_0 if version == (1, 0) else fmt.read_array_header_2_0
+                shape, fortran, kind = read_header(f)
+                ok = kind == np.dtype(bool) if dtype == "bool" else kind.kind in "iu"
+                if len(shape) != 1 or not ok or kind.hasobject:
+                    self.fail(f"{member} must be a 1-D {dtype} array, got {kind} {shape}")
+                rows = shape[0]
+                if rows > MAX_ARRAY_ROWS:
+                    self.fail(f"{member} holds {rows:,} rows; a project array holds at most {MAX_ARRAY_ROWS:,}")
+                if length is not None and rows != length:
+                    self.fail(f"{member} has {rows} rows, expected {length}")
+                if info.file_size != f.tell() + rows * kind.itemsize:
+                    self.fail(f"{member} is {info.file_size:,} bytes, not the {rows:,} rows its header declares")
+                a = np.frombuffer(f.read(rows * kind.itemsize), dtype=kind).copy()
+                f.read()  # to the end: zipfile checks the member's CRC there
+        except _ZIP_ERRORS as exc:
+            self.fail(f"{member} is not a readable .npy array ({_first_line(exc)})")
         return a.astype(np.int64) if dtype == "int" else a
 
     def ref(self, d, what: str, recorded_hash: bool = False) -> FileRef | None:

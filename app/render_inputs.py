@@ -1,5 +1,5 @@
-"""The values the render, video and bench commands take from their command lines: an image size, a background
-colour, and a Gaussian model file read into the numpy arrays renderer_gl draws."""
+"""The values the commands take from their command lines: an image size, a background colour, what a path names (a
+PLY, a .splat or a scene), and a Gaussian model file read into the numpy arrays renderer_gl draws."""
 
 from __future__ import annotations
 
@@ -32,6 +32,19 @@ def parse_background(text: str) -> tuple[float, float, float]:
     if len(rgb) != 3 or not all(0.0 <= v <= 1.0 for v in rgb):
         raise InputError(None, f"--background must be three numbers in 0..1 like 1,1,1, got {text!r}")
     return rgb
+
+
+def detect_kind(path: Path) -> str:
+    """A model file's format by read_model's rule (training/model/model_io.py), "scene" for anything else; a file
+    named like a model that is none gets read_model's error."""
+    from training.model.model_io import checked_format, has_model_suffix, model_format
+
+    fmt = model_format(path)
+    if fmt is not None:
+        return fmt
+    if path.is_file() and has_model_suffix(path):
+        checked_format(path)  # raises the precise "not an SPZ file" error
+    return "scene"
 
 
 def load_model_arrays(path: Path):

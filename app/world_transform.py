@@ -80,14 +80,6 @@ def plane_normal(points, toward=None) -> np.ndarray:
     return normal / np.linalg.norm(normal)
 
 
-def unproject(camera, x: float, y: float, depth: float) -> np.ndarray:
-    """The world point seen at pixel position (x, y) (continuous, from the top-left corner) at camera depth
-    ``depth`` (along the camera's z axis, as the renderer's depth output)."""
-    p = np.array([(x - camera.cx) / camera.fx * depth, (y - camera.cy) / camera.fy * depth, depth])
-    w2c = np.asarray(camera.world_to_camera, np.float64)
-    return w2c[:3, :3].T @ (p - w2c[:3, 3])
-
-
 def transform_camera(camera, matrix):
     """The dataset camera moved with the scene by the similarity ``matrix``: it sees the moved scene in the same
     pixels (camera coordinates scale by s, which projection divides out)."""

@@ -8,13 +8,14 @@ same picture. It imports no torch and no window code (glfw, imgui), so a viewer,
 it anywhere. API and conventions: docs/renderer.md.
 """
 
-from renderer_gl.camera import View, look_at, orbit, view
+from renderer_gl.camera import look_at, orbit, view
+from training.scene.camera import Camera
 from renderer_gl.context import Offscreen, create_context
 from renderer_gl.overlays import Lines, frustum, frustums, polyline
 from renderer_gl.renderer import MODES, FrameInfo, SplatRenderer
 from renderer_gl.splats import SplatArrays
 
 __all__ = [
-    "FrameInfo", "Lines", "MODES", "Offscreen", "SplatArrays", "SplatRenderer", "View", "create_context",
+    "Camera", "FrameInfo", "Lines", "MODES", "Offscreen", "SplatArrays", "SplatRenderer", "create_context",
     "frustum", "frustums", "look_at", "orbit", "polyline", "view",
 ]

@@ -17,7 +17,8 @@ import numpy as np
 import moderngl
 from renderer_gl import constants as C
 from renderer_gl import gl_direct
-from renderer_gl.camera import View, view
+from renderer_gl.camera import jacobian_limits, view
+from training.scene.camera import Camera
 from renderer_gl.context import is_software_gl
 from renderer_gl.overlays import Lines
 from renderer_gl.shader_source import source
@@ -253,7 +254,7 @@ class SplatRenderer:
         self._vaos[key] = (index, vao)
         return vao
 
-    def _draw_slot(self, slot: int, v: View, mode: str, max_sh_degree: int, params: dict, lod: float = 1.0) -> int:
+    def _draw_slot(self, slot: int, v: Camera, mode: str, max_sh_degree: int, params: dict, lod: float = 1.0) -> int:
         model = self._model(slot)
         if model.n == 0:
             return 0
@@ -264,7 +265,7 @@ class SplatRenderer:
         _set(prog, "u_campos", tuple(float(x) for x in v.center))
         _set(prog, "u_intr", (v.fx, v.fy, v.cx, v.cy))
         _set(prog, "u_size", (float(v.width), float(v.height)))
-        _set(prog, "u_lim", v.jacobian_limits())
+        _set(prog, "u_lim", jacobian_limits(v))
         _set(prog, "u_near", params["near"])
         _set(prog, "u_far", params["far"])
         _set(prog, "u_eps2d", params["eps2d"])

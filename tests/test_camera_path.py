@@ -9,13 +9,14 @@ import math
 import numpy as np
 import pytest
 
-from app.camera_path import (CameraPath, Keyframe, dataset_path, keyframe_from, look_at, matrix_to_quat, orbit_path,
+from app.camera_path import (CameraPath, dataset_path, keyframe_from, look_at, matrix_to_quat, orbit_path,
                              quat_to_matrix, slerp)
 from training.core.errors import InputError
+from training.scene.camera import Camera
 
 
-def key(eye, target=(0, 0, 0), w=640, h=360, f=500.0) -> Keyframe:
-    return Keyframe(look_at(eye, target, (0, -1, 0)), f, f, w / 2, h / 2, w, h)
+def key(eye, target=(0, 0, 0), w=640, h=360, f=500.0) -> Camera:
+    return Camera("keyframe", w, h, f, f, w / 2, h / 2, look_at(eye, target, (0, -1, 0)))
 
 
 def rotation_angle(r: np.ndarray) -> float:

@@ -98,7 +98,7 @@ def test(ctx):
     open_window(ctx, "Scene")
     ctx.item_click("frustums")
     ctx.item_click("stylization path")
-    ed = app.editor
+    ed = app.document.editor
     before = still(ctx)
     means = ed.model.means
     picked = in_sphere(means, np.median(means, axis=0), 0.1 * np.ptp(means, axis=0).max())
@@ -118,13 +118,13 @@ def test(ctx):
     np.save(OUT / "after.npy", after)
     np.save(OUT / "undone.npy", undone)
     found["rows"] = np.nonzero(picked)[0].tolist()
-    found["edits_after_undo"] = len(app.editor.extras.get("colour").adjustments) if "colour" in app.editor.extras else 0
+    found["edits_after_undo"] = len(app.document.editor.extras.get("colour").adjustments) if "colour" in app.document.editor.extras else 0
     with open(OUT / "camera.pkl", "wb") as f:
         pickle.dump(app.view.camera.camera(before.shape[1], before.shape[0]), f)
 
 from imgui_bundle import imgui
 run(app, test)
-found["error"] = app.error
+found["error"] = app.ui.messages.error
 Path(os.environ["RESULT"]).write_text(json.dumps(found))
 """, tmp_path)
     assert found["error"] == "", found["error"]
@@ -147,24 +147,24 @@ def test_selection_tools_pick_what_they_should(demo_scene, tmp_path):
 import pickle
 from imgui_bundle import imgui
 from app.viewer import select_tools as st
-from app.viewer.edit_panel import view_camera
+from app.viewer.gestures import view_camera
 from app.viewer.selection import in_brush
 app = ViewerApp(Paths(model={str(model)!r}, data={str(scene_dir)!r}, out=str(OUT / "out")))
 install_reader(app)
 
 def test(ctx):
     wait(ctx, lambda: app.view is not None and app.view.has_model(0), 60, "the model")
-    ed = app.editor
+    ed = app.document.editor
     still(ctx)
-    x, y, w, h = app.window.view_rect
-    cam = view_camera(app)
+    x, y, w, h = app.ui.window.view_rect
+    cam = view_camera(app.ui)
     open_window(ctx, "Edit")
     # colour pick: a click on the middle of the view
     ctx.combo_click("tool/colour pick")
     ctx.mouse_move_to_pos(imgui.ImVec2(x + w * 0.5, y + h * 0.55))
     ctx.mouse_click(0)
     settle(ctx, 0.2)
-    found["picked"] = list(app.select_tools.picked) if app.select_tools.picked else None
+    found["picked"] = list(app.ui.select_tools.picked) if app.ui.select_tools.picked else None
     found["pick_selected"] = np.nonzero(ed.selected)[0].tolist()
     found["pick_cursor"] = [w * 0.5, h * 0.55]
     with open(OUT / "camera.pkl", "wb") as f:
@@ -181,7 +181,7 @@ def test(ctx):
     ctx.mouse_up(0)
     settle(ctx, 0.2)
     found["brush_selected"] = np.nonzero(ed.selected)[0].tolist()
-    radius = app.edit.brush_radius
+    radius = app.ui.edit.brush_radius
     plain = np.zeros(ed.count, bool)
     for px, py in stroke:
         plain |= in_brush(ed.model.means, cam, px - x, py - y, radius)
@@ -195,13 +195,13 @@ def test(ctx):
     ctx.item_input_value("size min", float(lo))
     ctx.item_input_value("size max", float(hi))
     ctx.item_click("Select by size")
-    found["size_range"] = [app.select_tools.size[0], app.select_tools.size[1]]
+    found["size_range"] = [app.ui.select_tools.size[0], app.ui.select_tools.size[1]]
     found["size_selected"] = np.nonzero(ed.selected)[0].tolist()
     # opacity: all of them lie in [0.8, 0.95] (the model's opacity is sigmoid(2) = 0.881), none in [0, 0.5]
-    app.select_tools.opacity = [0.8, 0.95]
+    app.ui.select_tools.opacity = [0.8, 0.95]
     ctx.item_click("Select by opacity")
     found["opacity_high"] = int(ed.selected.sum())
-    app.select_tools.opacity = [0.0, 0.5]
+    app.ui.select_tools.opacity = [0.0, 0.5]
     ctx.item_click("Select by opacity")
     found["opacity_low"] = int(ed.selected.sum())
     # grow and shrink one Gaussian's neighbourhood
@@ -217,7 +217,7 @@ def test(ctx):
     found["undo_shrink"] = np.nonzero(ed.selected)[0].tolist()
 
 run(app, test)
-found["error"] = app.error
+found["error"] = app.ui.messages.error
 Path(os.environ["RESULT"]).write_text(json.dumps(found))
 """, tmp_path)
     from types import SimpleNamespace
@@ -297,54 +297,54 @@ def test_export_of_an_opened_stylized_model_is_what_export_project_bakes(stylize
     bit; undo takes the last drag back."""
     import torch
 
-    from app.project import save_project
     from app.viewer import colour_view as cv
-    from app.viewer.app import Paths, ViewerApp
+    from app.viewer.app import ViewerApp
     from app.viewer.export_panel import write
-    from app.viewer.project_io import project_from_app
+    from app.viewer.files import open_model, open_project, save_project
+    from app.viewer.state import Paths
     from training.model.colour_edit import ColourAdjustment
     from training.model.ply_io import read_ply
 
     original, stylized = stylized_pair
     app = ViewerApp(Paths(out=str(tmp_path / "out")))
-    app.open_model(str(stylized))
-    cv.pair_original(app, str(original))
-    ed = app.editor
+    doc, session, ui = app.document, app.session, app.ui
+    open_model(doc, session, ui, str(stylized))
+    doc.pair_original(str(original))
+    ed = app.document.editor
     ed.select(np.arange(ed.count) % 5 == 0)
     ed.delete()
     rows = torch.as_tensor(ed.index)
     a, b = read_ply(original), read_ply(stylized)
     assert not torch.equal(a.sh, b.sh)
     for value, reference in ((0.0, a), (1.0, b)):
-        cv.set_edits(app, cv.with_strength(cv.edits_of(app), None, value))
-        app.export.path = str(tmp_path / f"strength_{value:g}.ply")
-        write(app)
-        assert torch.equal(read_ply(app.export.path).sh, reference.sh[rows]), f"strength {value:g}"
+        doc.set_colour(cv.with_strength(doc.colour, None, value))
+        app.ui.export.path = str(tmp_path / f"strength_{value:g}.ply")
+        write(doc, session, ui)
+        assert torch.equal(read_ply(app.ui.export.path).sh, reference.sh[rows]), f"strength {value:g}"
     ed.select(np.arange(ed.count) % 3 == 0)
-    region = cv.region_mask(app, "selection")
-    edits = cv.with_adjustment(cv.edits_of(app), None, ColourAdjustment(saturation=0.4, temperature=0.3))
+    region = cv.region_mask(doc, "selection")
+    edits = cv.with_adjustment(doc.colour, None, ColourAdjustment(saturation=0.4, temperature=0.3))
     edits = cv.with_adjustment(edits, region, ColourAdjustment(brightness=0.1, hue=40.0))
-    cv.set_edits(app, cv.with_strength(edits, region, 0.35), merge=("drag", 1))
-    cv.set_edits(app, cv.with_strength(edits, region, 0.4), merge=("drag", 1))  # the same drag: one step
-    app.export.path = str(tmp_path / "edited.ply")
-    write(app)
-    colour, original_path = cv.for_project(app)
-    project = save_project(tmp_path / "session.splatproj", project_from_app(app, colour=colour,
-                                                                            original=original_path))
+    doc.set_colour(cv.with_strength(edits, region, 0.35), merge=("drag", 1))
+    doc.set_colour(cv.with_strength(edits, region, 0.4), merge=("drag", 1))  # the same drag: one step
+    app.ui.export.path = str(tmp_path / "edited.ply")
+    write(doc, session, ui)
+    project = save_project(doc, session, ui, str(tmp_path / "session.splatproj"), layout="")
     baked = tmp_path / "baked.ply"
     proc = subprocess.run([sys.executable, "-m", "app", "export", "--project", str(project), "-o", str(baked)],
                           cwd=ROOT, capture_output=True, text=True, timeout=300)
     assert proc.returncode == 0, proc.stderr[-2000:]
     mine, theirs = read_ply(tmp_path / "edited.ply"), read_ply(baked)
     assert torch.equal(mine.sh, theirs.sh) and torch.equal(mine.means, theirs.means)
-    shown = cv.displayed(app, ed.model).sh
+    shown = cv.displayed(doc, session, ed.model).sh
     assert np.allclose(shown, mine.sh.numpy(), atol=1e-5)  # the view shows what was exported
     again = ViewerApp(Paths(out=str(tmp_path / "out2")))
-    again.open_project(str(project))  # as File > Open project does: the edits and the paired original come back
-    assert np.array_equal(cv.displayed(again, again.editor.model).sh, shown)
+    # as File > Open project does: the edits and the paired original come back
+    open_project(again.document, again.session, again.ui, str(project))
+    assert np.array_equal(cv.displayed(again.document, again.session, again.document.editor.model).sh, shown)
     assert not np.allclose(shown, b.sh[rows].numpy(), atol=1e-3)
     ed.undo()
-    undone = cv.edits_of(app)  # the drag's two changes went back in one step
+    undone = doc.colour  # the drag's two changes went back in one step
     assert undone.adjustments == [] and undone.strength == 1.0 and undone.strength_regions == []
 
 
@@ -370,8 +370,8 @@ def test(ctx):
     wait(ctx, lambda: app.session.status().step >= 3, 240, "three stylization steps")
     ctx.item_click("Pause")
     wait(ctx, lambda: app.session.status().state == "paused", 60, "the pause")
-    app.training.refresh_s = 0.05
-    wait(ctx, lambda: app.training.shown_step == app.session.status().step, 60, "the paused model on screen")
+    app.ui.training.refresh_s = 0.05
+    wait(ctx, lambda: app.ui.training.shown_step == app.session.status().step, 60, "the paused model on screen")
     stylized = still(ctx)
     open_window(ctx, "Colour")
     ctx.combo_click("apply to/every Gaussian")
@@ -385,27 +385,27 @@ def test(ctx):
     ctx.item_click("Stop")
     wait(ctx, lambda: not app.session.running, 120, "the run to stop and save")
     ctx.yield_(3)
-    found["runs"] = [str(p) for p in app.training.runs]
+    found["runs"] = [str(p) for p in app.ui.training.runs]
     open_window(ctx, "Colour")
     for value in (0.0, 1.0):
         ctx.item_input_value("style strength", value)
-        app.export.path = str(OUT / f"strength_{{value:g}}.ply")
+        app.ui.export.path = str(OUT / f"strength_{{value:g}}.ply")
         open_window(ctx, "Edit")
         ctx.item_click("Export")
         open_window(ctx, "Colour")
-    found["undo_steps"] = len(app.editor.undo_stack)
+    found["undo_steps"] = len(app.document.editor.undo_stack)
     # the run's result opened from the Training panel's list: shown as it was when stopped, its original offered
     open_window(ctx, "Training")
     ctx.item_click("Open##run0")
-    found["opened"] = app.paths.model
+    found["opened"] = app.ui.paths.model
     found["running_trainer"] = app.session.trainer is not None
     np.save(OUT / "opened_run.npy", still(ctx))
     open_window(ctx, "Colour")
     ctx.yield_(2)
-    found["original_offered"] = app.colour.original_input
+    found["original_offered"] = app.ui.colour.original_input
 
 run(app, test)
-found["error"] = app.error
+found["error"] = app.ui.messages.error
 Path(os.environ["RESULT"]).write_text(json.dumps(found))
 """, tmp_path)
     import torch

@@ -41,7 +41,7 @@ def test(ctx):
     open_window(ctx, "Scene")
     ctx.item_click("frustums")
     ctx.item_click("stylization path")
-    ed = app.editor
+    ed = app.document.editor
     record("before", ctx)
     means = ed.model.means
     picked = in_sphere(means, np.median(means, axis=0), 0.1 * np.ptp(means, axis=0).max())
@@ -57,10 +57,10 @@ def test(ctx):
     for _ in range(4):                       # None, hue, brightness, the selection
         ctx.key_press(imgui.Key.mod_ctrl | imgui.Key.z)
     record("undone", ctx)
-    x, y, w, h = app.window.view_rect
+    x, y, w, h = app.ui.window.view_rect
     open_window(ctx, "Edit")
-    app.select_tools.colour_tolerance = 0.25
-    app.edit.brush_radius = 60.0
+    app.ui.select_tools.colour_tolerance = 0.25
+    app.ui.edit.brush_radius = 60.0
     ctx.combo_click("tool/colour pick")
     ctx.mouse_move_to_pos(imgui.ImVec2(x + w * 0.5, y + h * 0.55))
     ctx.mouse_click(0)
@@ -78,9 +78,9 @@ def test(ctx):
     ctx.item_click("Select by size")
     found["n_size"] = int(ed.selected.sum())
     shot("size_range", ctx)
-    from app.viewer.edit_panel import view_camera
+    from app.viewer.gestures import view_camera
     from app.viewer.select_tools import pick
-    seed = pick(ed.model, view_camera(app), w * 0.5, h * 0.4)   # the splat drawn most at that pixel
+    seed = pick(ed.model, view_camera(app.ui), w * 0.5, h * 0.4)   # the splat drawn most at that pixel
     ed.select(np.arange(ed.count) == seed, "set")
     for _ in range(3):
         ctx.item_click("Grow")
@@ -95,7 +95,7 @@ def test(ctx):
     open_window(ctx, "Edit")
     ctx.item_click("None")
     record("strength_zero", ctx)
-    app.export.path = str(OUT / "strength_zero.ply")  # the Edit panel's export at strength 0
+    app.ui.export.path = str(OUT / "strength_zero.ply")  # the Edit panel's export at strength 0
     ctx.item_click("Export")
     ctx.yield_(2)
     # the left half of the model back to the stylized colours: strength 1 on a selection over strength 0
@@ -109,7 +109,7 @@ def test(ctx):
     shot("style_strength", ctx)
 
 run(app, test)
-found["error"] = app.error
+found["error"] = app.ui.messages.error
 Path(os.environ["RESULT"]).write_text(json.dumps(found))
 """, tmp_path, env=x11_env(x_server))
     import pickle

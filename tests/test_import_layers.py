@@ -1,6 +1,12 @@
 """Imports run one way: core, scene and model at the bottom, raster above them, the trainers above that, the
 evaluation (training/evaluate) above the trainers, the app on top. The test reads every module's imports (those
-inside functions too) and fails on one that goes the wrong way."""
+inside functions too) and fails on one that goes the wrong way.
+
+Within the app: no module imports another in a circle (an import inside a function counts as much as one at the top,
+so none can be there to dodge a circle); the viewer's window (app/viewer/app.py) is its top, imported by nothing of
+the viewer; a panel (app/viewer/*_panel.py) is a leaf, imported only by the layout and importing no other panel;
+only app/cli.py imports the commands; the edited document and what it is made of import no UI; and a module's
+``_private`` names are used only inside it."""
 
 from __future__ import annotations
 
@@ -15,8 +21,8 @@ ROOT = Path(__file__).resolve().parents[1]
 # training packages, bottom to top: a package may import its own modules and those of lower rank
 TRAINING_RANKS = {"core": 0, "scene": 1, "model": 2, "raster": 3, "reconstruct": 4, "stylize": 5, "evaluate": 6}
 GUI_MODULES = ("moderngl", "glfw", "imgui_bundle", "OpenGL", "glcontext")
-# renderer_gl may read these torch-free constant modules and nothing else of the engine: one source of defaults
-RENDERER_MAY_IMPORT = ("training.raster.constants", "training.model.sh_constants")
+# renderer_gl may read these torch-free modules and nothing else of the engine: one source of defaults, one camera
+RENDERER_MAY_IMPORT = ("training.raster.constants", "training.model.sh_constants", "training.scene.camera")
 
 
 def modules(top: str) -> list[Path]:
@@ -81,6 +87,120 @@ def violations() -> list[str]:
     return out
 
 
+def module_name(path: Path) -> str:
+    parts = list(path.relative_to(ROOT).with_suffix("").parts)
+    return ".".join(parts[:-1] if parts[-1] == "__init__" else parts)
+
+
+def project_modules() -> dict[str, Path]:
+    return {module_name(p): p for top in ("app", "training", "renderer_gl", "assets") for p in modules(top)}
+
+
+def resolve(name: str, known: dict[str, Path]) -> str | None:
+    """The project module an imported name is (``from a.b import c``: a.b.c when it is a module, else a.b)."""
+    while name:
+        if name in known:
+            return name
+        name = name.rpartition(".")[0]
+    return None
+
+
+def app_graph(known: dict[str, Path]) -> dict[str, set[str]]:
+    """module -> the app modules it imports (anywhere in the file)."""
+    graph = {}
+    for name, path in known.items():
+        if is_under(name, "app"):
+            found = {resolve(imported, known) for _, imported in imports_of(path)}
+            graph[name] = {m for m in found if m and is_under(m, "app") and m != name}
+    return graph
+
+
+def cycles(graph: dict[str, set[str]]) -> list[list[str]]:
+    """The import circles (strongly connected components of more than one module), each as a path around it."""
+    index, low, stack, on, out = {}, {}, [], set(), []
+
+    def visit(v):
+        index[v] = low[v] = len(index)
+        stack.append(v)
+        on.add(v)
+        for w in sorted(graph.get(v, ())):
+            if w not in index:
+                visit(w)
+                low[v] = min(low[v], low[w])
+            elif w in on:
+                low[v] = min(low[v], index[w])
+        if low[v] == index[v]:
+            component = []
+            while True:
+                w = stack.pop()
+                on.discard(w)
+                component.append(w)
+                if w == v:
+                    break
+            if len(component) > 1:
+                out.append(sorted(component))
+
+    for v in sorted(graph):
+        if v not in index:
+            visit(v)
+    return out
+
+
+PANEL = "_panel"
+NO_UI = ("app.viewer.document", "app.viewer.scene_models", "app.viewer.selection", "app.viewer.state",
+         "app.viewer.colour_view", "app.viewer.world_edit", "app.viewer.session", "app.viewer.stages")
+
+
+def private_uses(path: Path, known: dict[str, Path]) -> list[tuple[int, str]]:
+    """(line, module._name) for each use of another module's private name: imported from it, or read off it."""
+    tree = ast.parse(path.read_text(), filename=str(path))
+    module_aliases, out = {}, []
+    for node in ast.walk(tree):
+        if isinstance(node, ast.ImportFrom) and node.module and not node.level:
+            for alias in node.names:
+                if alias.name.startswith("_") and not alias.name.startswith("__") and resolve(node.module, known):
+                    out.append((node.lineno, f"{node.module}.{alias.name}"))
+                if f"{node.module}.{alias.name}" in known:
+                    module_aliases[alias.asname or alias.name] = f"{node.module}.{alias.name}"
+        elif isinstance(node, ast.Import):
+            for alias in node.names:
+                if alias.asname and alias.name in known:
+                    module_aliases[alias.asname] = alias.name
+    for node in ast.walk(tree):
+        if (isinstance(node, ast.Attribute) and isinstance(node.value, ast.Name) and node.value.id in module_aliases
+                and node.attr.startswith("_") and not node.attr.startswith("__")):
+            out.append((node.lineno, f"{module_aliases[node.value.id]}.{node.attr}"))
+    return out
+
+
+def app_violations() -> list[str]:
+    known = project_modules()
+    graph = app_graph(known)
+    out = [f"import circle: {' -> '.join(c)}" for c in cycles(graph)]
+    for name, imported in sorted(graph.items()):
+        leaf = name.rpartition(".")[2]
+        for m in sorted(imported):
+            where = f"{name} imports {m}"
+            if m == "app.viewer.app" and is_under(name, "app.viewer"):
+                out.append(f"{where}: the window is the viewer's top, nothing of the viewer imports it")
+            if m.endswith(PANEL) and leaf.endswith(PANEL):
+                out.append(f"{where}: panels do not import each other")
+            elif m.endswith(PANEL) and name != "app.viewer.layout":
+                out.append(f"{where}: only the layout puts panels in the window")
+            if is_under(m, "app.commands") and name != "app.cli" and not is_under(name, "app.commands"):
+                out.append(f"{where}: only app/cli.py imports the commands")
+        if name in NO_UI:
+            for line, imported_name in imports_of(known[name]):
+                if any(is_under(imported_name, gui) for gui in GUI_MODULES):
+                    out.append(f"{name}:{line} imports {imported_name}: the document and its parts have no UI")
+    for name, path in sorted(known.items()):
+        if is_under(name, "app"):
+            for line, used in private_uses(path, known):
+                if resolve(used.rpartition(".")[0], known) != name:
+                    out.append(f"{name}:{line} uses {used}: a module's _names are its own")
+    return out
+
+
 def test_imports_run_one_way():
     found = violations()
     assert not found, "\n".join(found)
@@ -100,8 +220,38 @@ def test_the_checker_sees_a_wrong_way_import(tmp_path, monkeypatch):
     assert any("bad.py:3 imports moderngl" in v for v in found), found
 
 
+def test_the_app_has_no_circles_and_its_panels_are_leaves():
+    found = app_violations()
+    assert not found, "\n".join(found)
+
+
+def test_the_app_checker_sees_a_circle_a_panel_import_and_a_private_name(tmp_path, monkeypatch):
+    """Planted in a copy of the tree: a circle closed by an import inside a function, a panel that imports another,
+    a document that imports imgui, and another module's private name; each is reported."""
+    import shutil
+
+    for top in ("app", "training", "renderer_gl", "assets"):
+        shutil.copytree(ROOT / top, tmp_path / top, ignore=shutil.ignore_patterns("__pycache__"))
+    viewer = tmp_path / "app" / "viewer"
+    (viewer / "selection.py").write_text((viewer / "selection.py").read_text()
+                                         + "\n\ndef dodge():\n    from app.viewer.document import Document\n")
+    (viewer / "colour_panel.py").write_text((viewer / "colour_panel.py").read_text()
+                                            + "\nfrom app.viewer.style_panel import heatmap\n")
+    (viewer / "document.py").write_text((viewer / "document.py").read_text() + "\nfrom imgui_bundle import imgui\n")
+    (viewer / "files.py").write_text((viewer / "files.py").read_text()
+                                     + "\nfrom app.viewer.session import _one_line\n")
+    monkeypatch.setattr(sys.modules[__name__], "ROOT", tmp_path)
+    found = app_violations()
+    assert any(v.startswith("import circle:") and "app.viewer.selection" in v and "app.viewer.document" in v
+               for v in found), found
+    assert any("colour_panel imports app.viewer.style_panel: panels do not import each other" in v for v in found)
+    assert any("app.viewer.document:" in v and "imgui_bundle" in v for v in found), found
+    assert any("app.viewer.files:" in v and "uses app.viewer.session._one_line" in v for v in found), found
+
+
 @pytest.mark.parametrize("module", ["training.stylize.defaults", "training.raster.constants",
-                                    "training.model.sh_constants", "renderer_gl"])
+                                    "training.model.sh_constants", "training.scene.camera",
+                                    "renderer_gl"])
 def test_light_modules_load_without_torch(module):
     """The CLI's help text and the renderer read these; loading them must not load torch."""
     if not (ROOT / (module.replace(".", "/") + ".py")).exists() and not (ROOT / module).is_dir():

@@ -3,8 +3,10 @@ viewer drives it; stop and errors save what there is and leave one line for the 
 
 from __future__ import annotations
 
+import functools
 import time
 
+import numpy as np
 import pytest
 
 from app.viewer.session import LiveSession, SessionMessage, Stage
@@ -115,3 +117,99 @@ def test_each_stage_has_its_own_curves(scene_dir, tmp_path):
     assert session.status().state == "finished"
     steps = [h["step"] for h in session.history]
     assert steps == sorted(set(steps)) and len(steps) == 4, steps
+
+
+@functools.lru_cache(maxsize=1)
+def tiny_scene():
+    from assets.demo.scene import make_demo_scene
+
+    return make_demo_scene(num_views=16, width=64, height=48, num_points=800)
+
+
+def tiny_reconstructor(**densify):
+    """A reconstruction of a small demo scene (16 views, 64x48) that densifies from its second step."""
+    from training.reconstruct.densify import DensifyConfig
+    from training.reconstruct.trainer import ReconstructConfig, Reconstructor
+    from training.scene.scene import Scene
+
+    d = tiny_scene()
+    dens = DensifyConfig(**{"start": 1, "stop": 1000, "interval": 2, "reset_every": 0, "grad_threshold": 1e-9,
+                            **densify})
+    return Reconstructor(Scene(d.cameras, d.images, points=d.points, point_colors=d.point_colors),
+                         ReconstructConfig(iterations=1000, sh_interval=1000, device="cpu", densify=dens))
+
+
+def test_a_call_submitted_while_a_stage_ends_never_reaches_the_next_stages_trainer(tmp_path):
+    """An export clicked while the reconstruction saves, before the stylization begins: it is refused in one line
+    (the model it was asked of is gone), not run on the next stage's trainer."""
+    import threading
+
+    saving, go_on = threading.Event(), threading.Event()
+    trainers = []
+
+    def build(_previous):
+        trainer = tiny_reconstructor(enabled=False)
+        trainer.config.iterations = 3 if not trainers else 1000
+        trainers.append(trainer)
+        return trainer
+
+    def save(trainer, finished, cancel):
+        if trainer is trainers[0]:
+            saving.set()
+            go_on.wait(60)
+        return None
+
+    session = LiveSession()
+    session.start([Stage("reconstruct", build, save), Stage("stylize", build, save)])
+    try:
+        wait(saving.is_set, 120, "the first stage to save")
+        future = session.submit(lambda trainer: trainer)
+        go_on.set()
+        wait(future.done, 120, "the call to be answered")
+        assert len(trainers) == 2
+        assert future.exception() is not None, "it ran on the next stage's trainer"
+        assert "reconstruct" in str(future.exception()) and "\n" not in str(future.exception())
+    finally:
+        go_on.set()
+        session.close()
+
+
+def test_a_live_delete_is_taken_by_a_paused_trainer_that_just_densified(tmp_path):
+    """A snapshot taken in the moment between a densifying step's update and the end of that step (the view takes
+    one whenever it likes) holds the new Gaussians: the selection made on it, deleted while the trainer is paused,
+    reaches the trainer instead of being refused until the next step."""
+    from app.viewer.app import ViewerApp
+    from app.viewer.state import Paths
+
+    structure = []
+
+    def build(_previous):
+        trainer = tiny_reconstructor()
+        # the view's snapshot at the moment the step is announced (the UI thread may take one at any moment)
+        trainer.add_listener(lambda e: trainer.snapshot() if e.kind == "step" else None)
+        trainer.add_listener(lambda e: structure.append(e.step) if e.kind == "structure" else None)
+        return trainer
+
+    app = ViewerApp(Paths(out=str(tmp_path / "out")))
+    app.session.start([Stage("reconstruct", build, lambda *a: None)], paused=True)
+    try:
+        wait(lambda: app.session.trainer is not None and app.session.status().state == "paused", 120, "the trainer")
+        trainer = app.session.trainer
+        while not structure:
+            steps = trainer.step_count
+            app.session.single_step()
+            wait(lambda: trainer.step_count == steps + 1 and app.session.status().state == "paused", 60, "a step")
+        n = len(trainer.gaussians)
+        from app.viewer.runs import edit_live
+
+        edit_live(app.document, app.session, app.ui)
+        ed = app.document.editor
+        assert ed.count == n
+        ed.select(np.arange(n) % 2 == 0)
+        ed.delete()
+        (what, future, _), = app.ui.training.pending
+        wait(future.done, 60, "the trainer to take the deletion")
+        assert future.exception() is None, future.exception()
+        assert len(trainer.gaussians) == n - (n + 1) // 2
+    finally:
+        app.session.close()

@@ -13,12 +13,13 @@ import pytest
 import torch
 
 import app.project as project_module
-from app.camera_path import Keyframe
+from app.camera_path import CameraPath
 from app.project import FileRef, ModelEntry, Project, file_sha256, open_project, save_project
 from training.core.errors import InputError
 from training.model.colour_edit import ColourAdjustment, ColourEdits
 from training.model.gaussians import Gaussians
 from training.model.ply_io import write_ply
+from training.scene.camera import Camera
 
 
 def model(n=200, degree=1, seed=0) -> Gaussians:
@@ -29,10 +30,10 @@ def model(n=200, degree=1, seed=0) -> Gaussians:
                      sh_degree=degree)
 
 
-def key(x: float) -> Keyframe:
+def key(x: float) -> Camera:
     m = np.eye(4)
     m[:3, 3] = [x, 0.5, 2.0]
-    return Keyframe(m, 500.0, 510.0, 320.0, 180.0, 640, 360)
+    return Camera("keyframe", 640, 360, 500.0, 510.0, 320.0, 180.0, m)
 
 
 def full_project(folder) -> Project:
@@ -52,8 +53,8 @@ def full_project(folder) -> Project:
                        rng.random(len(kept)) > 0.7, rng.random(len(kept)) > 0.9, transform, colour)
     return Project([entry], FileRef(folder / "data"), FileRef(folder / "painting.jpg"),
                    stylize={"loss": "nnfm", "tau": 0.5, "background": (1.0, 1.0, 1.0)}, camera=key(0.0),
-                   camera_distance=2.5, path_keys=[key(0.0), key(1.0)], path_duration=6.0, path_fps=24.0,
-                   path_loop=True, layout="[Window][Scene]\nPos=0,0\n", up=np.array([0.0, 0.0, 1.0]),
+                   camera_distance=2.5, camera_path=CameraPath([key(0.0), key(1.0)], 6.0, 24.0, True),
+                   layout="[Window][Scene]\nPos=0,0\n", up=np.array([0.0, 0.0, 1.0]),
                    world=np.diag([2.0, 2, 2, 1]))
 
 
@@ -72,8 +73,7 @@ def assert_same(a: Project, b: Project) -> None:
     assert a.stylize == b.stylize and a.layout == b.layout
     assert np.array_equal(a.camera.world_to_camera, b.camera.world_to_camera) and a.camera.fy == b.camera.fy
     assert a.camera_distance == b.camera_distance
-    assert [k.to_dict() for k in a.path_keys] == [k.to_dict() for k in b.path_keys]
-    assert (a.path_duration, a.path_fps, a.path_loop) == (b.path_duration, b.path_fps, b.path_loop)
+    assert a.camera_path.to_dict() == b.camera_path.to_dict()  # keyframes, duration, fps, loop
     assert np.array_equal(a.up, b.up) and np.array_equal(a.world, b.world)
     assert a.dataset.path.resolve() == b.dataset.path.resolve()
 
@@ -103,7 +103,7 @@ def test_a_project_moved_with_its_files_opens_and_one_moved_alone_too(tmp_path):
     assert all("\n" not in line for line in problems)
     assert any(line.startswith(f"{tmp_path / 'stylized.ply'}: model 'fox' not found") for line in problems)
     assert q.models[0].file.missing and not q.models[0].usable
-    assert q.layout.startswith("[Window]") and len(q.path_keys) == 2  # the rest opened
+    assert q.layout.startswith("[Window]") and len(q.camera_path.keyframes) == 2  # the rest opened
 
 
 def test_a_changed_model_is_one_line(tmp_path):
@@ -150,7 +150,7 @@ def test_a_minimal_hand_written_v1_manifest_opens_with_defaults(tmp_path):
     assert problems == []
     m = q.models[0]
     assert m.name == "m" and m.kept is None and m.selected is None and np.array_equal(m.transform, np.eye(4))
-    assert m.colour.is_identity and q.camera is None and q.path_keys == [] and q.layout == ""
+    assert m.colour.is_identity and q.camera is None and q.camera_path.keyframes == [] and q.layout == ""
     assert np.array_equal(q.world, np.eye(4)) and q.stylize == {} and q.dataset is None
 
 

@@ -189,3 +189,65 @@ def test_two_models_export_as_one_file_with_their_transforms(tmp_path, capsys):
     moved = transform_gaussians(second, move)
     assert torch.equal(got.means[N:], moved.means) and torch.equal(got.shN[N:, :3], moved.shN)
     assert not got.shN[N:, 3:].any()  # the degree-1 model's missing bands are zero
+
+
+def damaged_project(tmp_path, damage: str):
+    """A project of one model whose "selected" array member is damaged as ``damage`` says."""
+    import io
+    import json
+    import zipfile
+
+    photo_and_stylized(tmp_path)
+    manifest = {"version": 1, "models": [{"path": "photo.ply", "selected": "arrays/s.npy"}]}
+    path = tmp_path / f"{damage}.splatproj"
+    if damage == "bomb":  # 200 MB of a valid bool array that deflates to about 200 kB
+        with zipfile.ZipFile(path, "w", zipfile.ZIP_DEFLATED) as z:
+            z.writestr("project.json", json.dumps(manifest))
+            with z.open("arrays/s.npy", "w", force_zip64=True) as f:
+                rows = 200_000_000
+                np.lib.format.write_array_header_1_0(f, {"descr": "|b1", "fortran_order": False,
+                                                         "shape": (rows,)})
+                block = bytes(1 << 24)
+                for _ in range(rows // len(block)):
+                    f.write(block)
+                f.write(bytes(rows % len(block)))
+        return path
+    if damage == "empty":
+        member = b""
+    elif damage == "zip inside":
+        buf = io.BytesIO()
+        np.savez(buf, s=np.zeros(N, bool))
+        member = buf.getvalue()
+    else:
+        buf = io.BytesIO()
+        np.save(buf, np.zeros(N, bool))
+        member = buf.getvalue()
+    with zipfile.ZipFile(path, "w", zipfile.ZIP_STORED) as z:
+        z.writestr("project.json", json.dumps(manifest))
+        z.writestr("arrays/s.npy", member)
+    if damage == "crc":  # one byte of the stored array flipped: the zip's checksum no longer matches
+        data = bytearray(path.read_bytes())
+        at = data.index(member) + len(member) - 1
+        data[at] ^= 0xFF
+        path.write_bytes(bytes(data))
+    return path
+
+
+@pytest.mark.parametrize("damage", ["empty", "zip inside", "crc", "bomb"])
+def test_a_damaged_array_member_is_one_line_and_is_not_read_whole(tmp_path, capsys, damage):
+    """An empty .npy, a member that is itself a zip, a checksum error and a zip bomb (200 MB that deflate to
+    200 kB) are each one line naming the project (exit 2), and the bomb is refused before it is inflated."""
+    import tracemalloc
+
+    path = damaged_project(tmp_path, damage)
+    out = tmp_path / "out.ply"
+    tracemalloc.start()
+    try:
+        code, _, err = export(capsys, "export", "--project", path, "-o", out)
+        peak = tracemalloc.get_traced_memory()[1]
+    finally:
+        tracemalloc.stop()
+    assert code == 2 and not out.exists(), err
+    assert err.startswith(f"splatstyler: error: {path}: ") and len(err.strip().splitlines()) == 1, err
+    assert "Traceback" not in err
+    assert peak < 50e6, f"{peak / 1e6:.0f} MB held while reading the project"

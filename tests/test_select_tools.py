@@ -11,7 +11,6 @@ import pytest
 
 from app.render_inputs import load_model_arrays
 from app.viewer import select_tools as st
-from app.viewer.selection import project
 from renderer_gl import SplatRenderer, create_context
 from tests.viewer_harness import make_demo_scene
 
@@ -52,7 +51,7 @@ def test_the_surface_test_keeps_the_front_layer(rendered):
     on = st.on_surface(model.means, camera, depth, 0.1)
     z = st.camera_depths(model.means, camera)
     assert 0 < on.sum() < len(z)
-    uv, front = project(model.means, camera)
+    uv, front = camera.project(model.means)
     inside = front & (uv[:, 0] >= 0) & (uv[:, 0] < camera.width) & (uv[:, 1] >= 0) & (uv[:, 1] < camera.height)
     px, py = np.floor(uv[inside]).astype(int).T
     ratio = z[inside] / np.where(depth[py, px] > 0, depth[py, px], np.nan)

@@ -154,10 +154,10 @@ def test_stylize_update_config_reaches_the_next_plan(tiny, vgg, monkeypatch):
     s = stylizer(tiny, vgg)
     s.step()
     used: list[float] = []
-    import training.stylize.style_losses as losses
+    import training.stylize.ccft as ccft
 
-    real = losses.ccft_loss
-    monkeypatch.setattr(losses, "ccft_loss", lambda *a, **kw: (used.append(kw["tau"]), real(*a, **kw))[1])
+    real = ccft.semi_balanced_sinkhorn  # (cost, indices, reachable, tau, ...): the plan's tau
+    monkeypatch.setattr(ccft, "semi_balanced_sinkhorn", lambda *a, **kw: (used.append(a[3]), real(*a, **kw))[1])
     done = threading.Event()
     threading.Thread(target=lambda: (s.update_config(tau=0.01, k=4), done.set())).start()
     assert done.wait(10)

@@ -68,7 +68,7 @@ def test_three_point_pairs_give_the_similarity_back():
 
 DRAG = """
 from imgui_bundle import imgui
-from app.viewer import gizmo
+from app.viewer import gestures
 
 def drag(ctx, start, offset, steps=8):
     ctx.mouse_move_to_pos(imgui.ImVec2(float(start[0]), float(start[1])))
@@ -80,7 +80,7 @@ def drag(ctx, start, offset, steps=8):
     settle(ctx, 0.5)
 
 def on_screen(points):
-    return gizmo._project(app, np.asarray(points, float).reshape(-1, 3))[0]
+    return gestures.on_screen(app.ui, np.asarray(points, float).reshape(-1, 3))[0]
 """
 
 
@@ -95,7 +95,7 @@ app = ViewerApp(Paths(model={str(model)!r}, out=str(OUT / "out")))
 
 def test(ctx):
     wait(ctx, lambda: app.view is not None and app.view.has_model(0), 60, "the model")
-    ed = app.editor
+    ed = app.document.editor
     before = {{name: getattr(ed.model, name).copy() for name in ("means", "scales", "quats", "opacities", "sh")}}
     sel = before["means"][:, 0] > np.percentile(before["means"][:, 0], 70)
     ed.select(sel)
@@ -103,7 +103,7 @@ def test(ctx):
     ctx.set_ref("")
     ctx.key_press(imgui.Key.g)
     settle(ctx, 0.5)
-    found["op"] = app.gizmo.op
+    found["op"] = app.ui.gizmo.op
     rotation = app.view.camera.rotation.copy()
     centre = on_screen(before["means"][sel].astype(float).mean(axis=0))[0]
     steps = len(ed.undo_stack)
@@ -121,14 +121,14 @@ def test(ctx):
     ctx.key_press(imgui.Key.mod_ctrl | imgui.Key.y)
     settle(ctx, 0.3)
     found["redo_equal"] = all(np.array_equal(getattr(ed.model, n), after[n]) for n in after)
-    found["shown_version"] = app.edit.shown_version == ed.version
-    app.export.path = str(OUT / "moved.ply")
+    found["shown_version"] = app.ui.edit.shown_version == ed.version
+    app.ui.export.path = str(OUT / "moved.ply")
     open_window(ctx, "Edit")
     ctx.item_click("Export")
     app.save_project(str(OUT / "moved.splatproj"))
 
 run(app, test)
-found["error"] = app.error
+found["error"] = app.ui.messages.error
 Path(os.environ["RESULT"]).write_text(json.dumps(found))
 """, tmp_path)
     assert found["error"] == "", found["error"]
@@ -170,12 +170,12 @@ from imgui_bundle import imgui
 app = ViewerApp(Paths(model={str(model)!r}, out=str(OUT / "out")))
 
 def box():
-    return [list(map(float, side)) for side in app.edit.box]
+    return [list(map(float, side)) for side in app.ui.edit.box]
 
 def test(ctx):
     wait(ctx, lambda: app.view is not None and app.view.has_model(0), 60, "the model")
     open_window(ctx, "Edit")
-    ed = app.editor
+    ed = app.document.editor
     found["start"] = box()
     lo, hi = found["start"]
     steps = len(ed.undo_stack)
@@ -197,7 +197,7 @@ def test(ctx):
     found["crop"] = [count, int(inside.sum()), ed.count]
 
 run(app, test)
-found["error"] = app.error
+found["error"] = app.ui.messages.error
 Path(os.environ["RESULT"]).write_text(json.dumps(found))
 """, tmp_path)
     assert found["error"] == "", found["error"]
@@ -232,33 +232,33 @@ app = ViewerApp(Paths(model={str(model)!r}, out=str(OUT / "out")))
 
 def test(ctx):
     wait(ctx, lambda: app.view is not None and app.view.has_model(0), 60, "the model")
-    n1 = app.editor.count
+    n1 = app.document.editor.count
     app.on_drop(None, [{str(second)!r}])
     ctx.yield_(3)
-    found["count"] = app.editor.count
+    found["count"] = app.document.editor.count
     found["n1"] = n1
-    found["target"] = app.gizmo.target
-    means = app.editor.model.means.astype(float)
+    found["target"] = app.ui.gizmo.target
+    means = app.document.editor.model.means.astype(float)
     mid = means.mean(axis=0)
     app.view.camera = ViewerCamera.looking_at(mid + np.array([0.0, -8.0, -40.0]), mid, up=(0.0, -1.0, 0.0))
     app.view.moved()
     ctx.set_ref("")
     ctx.key_press(imgui.Key.g)
     settle(ctx, 0.5)
-    rows = np.arange(app.editor.count) >= n1
+    rows = np.arange(app.document.editor.count) >= n1
     cam = app.view.camera
     centre = means[rows].mean(axis=0)
     found["centre"] = centre.tolist()
     found["c2w"] = np.c_[cam.rotation, cam.position].tolist()
-    found["focal"] = float(cam.camera(*app.window.view_rect[2:]).fy)  # pixels of the view (scale 1 here)
+    found["focal"] = float(cam.camera(*app.ui.window.view_rect[2:]).fy)  # pixels of the view (scale 1 here)
     found["drag_from"] = on_screen(centre)[0].tolist()
     drag(ctx, on_screen(centre)[0], (-40, 30))
-    found["after_move"] = app.scene_models.parts[-1].transform.tolist()
+    found["after_move"] = app.document.models.parts[-1].transform.tolist()
     ctx.key_press(imgui.Key.t)  # turn: ImGuizmo's outer ring (0.06 of the view's height) turns about the view axis
     settle(ctx, 0.3)
-    c = on_screen(app.editor.model.means[rows].astype(float).mean(axis=0))[0]
-    found["turn_centre"] = app.editor.model.means[rows].astype(float).mean(axis=0).tolist()
-    radius = 0.06 * app.window.view_rect[3]
+    c = on_screen(app.document.editor.model.means[rows].astype(float).mean(axis=0))[0]
+    found["turn_centre"] = app.document.editor.model.means[rows].astype(float).mean(axis=0).tolist()
+    radius = 0.06 * app.ui.window.view_rect[3]
     arc = [np.radians(a) for a in np.linspace(-45, -15, 7)]
     ctx.mouse_move_to_pos(imgui.ImVec2(float(c[0] + radius * np.cos(arc[0])), float(c[1] + radius * np.sin(arc[0]))))
     settle(ctx, 0.3)
@@ -267,21 +267,21 @@ def test(ctx):
         ctx.mouse_move_to_pos(imgui.ImVec2(float(c[0] + radius * np.cos(a)), float(c[1] + radius * np.sin(a))))
     ctx.mouse_up(0)
     settle(ctx, 0.5)
-    found["after_turn"] = app.scene_models.parts[-1].transform.tolist()
+    found["after_turn"] = app.document.models.parts[-1].transform.tolist()
     found["forward"] = cam.forward.tolist()
     ctx.key_press(imgui.Key.y)  # scale: the handle at the centre scales uniformly
     settle(ctx, 0.3)
-    drag(ctx, on_screen(app.editor.model.means[rows].astype(float).mean(axis=0))[0], (50, 0))
-    found["parts"] = [[p.file, p.transform.tolist()] for p in app.scene_models.parts]
-    app.export.path = str(OUT / "merged.ply")
+    drag(ctx, on_screen(app.document.editor.model.means[rows].astype(float).mean(axis=0))[0], (50, 0))
+    found["parts"] = [[p.file, p.transform.tolist()] for p in app.document.models.parts]
+    app.ui.export.path = str(OUT / "merged.ply")
     open_window(ctx, "Edit")
     ctx.item_click("Export")
     ctx.yield_(2)
     app.save_project({str(project)!r})
-    found["messages"] = app.messages[-6:]
+    found["messages"] = app.ui.messages.lines[-6:]
 
 run(app, test)
-found["error"] = app.error
+found["error"] = app.ui.messages.error
 Path(os.environ["RESULT"]).write_text(json.dumps(found))
 """, tmp_path)
     assert found["error"] == "", found["error"]
@@ -326,15 +326,15 @@ Path(os.environ["RESULT"]).write_text(json.dumps(found))
 app = ViewerApp(Paths(out=str(OUT / "again")), project={str(project)!r})
 
 def test(ctx):
-    wait(ctx, lambda: app.editor is not None and app.view.has_model(0), 60, "the project")
-    found["count"] = app.editor.count
-    found["models"] = [f.name for f in app.scene_models.files]
-    np.save(OUT / "means.npy", app.editor.model.means)
-    found["undo"] = len(app.editor.undo_stack)
+    wait(ctx, lambda: app.document.editor is not None and app.view.has_model(0), 60, "the project")
+    found["count"] = app.document.editor.count
+    found["models"] = [f.name for f in app.document.models.files]
+    np.save(OUT / "means.npy", app.document.editor.model.means)
+    found["undo"] = len(app.document.editor.undo_stack)
 
 run(app, test)
-found["error"] = app.error
-found["messages"] = app.messages
+found["error"] = app.ui.messages.error
+found["messages"] = app.ui.messages.lines
 Path(os.environ["RESULT"]).write_text(json.dumps(found))
 """, tmp_path / "again")
     assert reopened["error"] == "", reopened["error"]
@@ -360,19 +360,19 @@ known = np.array({known.tolist()!r})
 
 def test(ctx):
     wait(ctx, lambda: app.view is not None and app.view.has_model(0), 60, "the model")
-    n1 = app.editor.count
+    n1 = app.document.editor.count
     open_window(ctx, "Edit")
     ctx.item_input_value("##add model path", {str(copy)!r})
     ctx.item_click("Add model to scene")
-    found["added"] = app.editor.count
-    means = app.editor.model.means.astype(float)
+    found["added"] = app.document.editor.count
+    means = app.document.editor.model.means.astype(float)
     mid = means.mean(axis=0)
     app.view.camera = ViewerCamera.looking_at(mid + np.array([0.0, -6.0, -34.0]), mid, up=(0.0, -1.0, 0.0))
     app.view.moved()
     settle(ctx, 0.5)
     open_window(ctx, "Edit")
     ctx.item_click("Align copy by 3 point pairs")
-    found["aligning"] = app.gizmo.align.active
+    found["aligning"] = app.ui.gizmo.align.active
     # three well-spread Gaussians of the original, opaque and in front: the same ones on the copy
     a = means[:n1]
     def near(qx, qy):
@@ -386,18 +386,18 @@ def test(ctx):
             ctx.mouse_move_to_pos(imgui.ImVec2(float(xy[0]), float(xy[1])))
             ctx.mouse_click(0)
             settle(ctx, 0.3)
-    found["aligning_after"] = app.gizmo.align.active
-    found["transform"] = app.scene_models.parts[-1].transform.tolist()
+    found["aligning_after"] = app.ui.gizmo.align.active
+    found["transform"] = app.document.models.parts[-1].transform.tolist()
     found["span"] = float(np.ptp(a, axis=0).max())
-    found["messages"] = app.messages[-8:]
-    found["undo"] = len(app.editor.undo_stack)
+    found["messages"] = app.ui.messages.lines[-8:]
+    found["undo"] = len(app.document.editor.undo_stack)
     testing.capture(ctx, str(OUT / "aligned.png"))
-    app.export.path = str(OUT / "aligned.ply")
+    app.ui.export.path = str(OUT / "aligned.ply")
     ctx.set_ref("Edit")
     ctx.item_click("Export")
 
 run(app, test)
-found["error"] = app.error
+found["error"] = app.ui.messages.error
 Path(os.environ["RESULT"]).write_text(json.dumps(found))
 """, tmp_path)
     assert found["error"] == "", found["error"]
@@ -448,16 +448,13 @@ def test_a_gizmo_pose_becomes_a_similarity_about_its_centre():
 def test_the_scene_ledger_maps_source_rows_to_their_files():
     """Parts tile the source rows: a model of 5, a second of 3, then rows 1 and 3 of the first moved and row 2 of
     the second: each source row names its file and its row there."""
-    from types import SimpleNamespace
-
-    from app.viewer.scene_models import SceneModels, file_rows
+    from app.viewer.scene_models import SceneModels
 
     models = SceneModels.opened("a.ply", 5)
     models.add_part(models.add_file("b.ply"), np.arange(3), np.eye(4))
     models.add_part(0, [1, 3], np.eye(4))
     models.add_part(1, [2], np.eye(4))
-    app = SimpleNamespace(scene_models=models, editor=SimpleNamespace(index=np.array([0, 8, 2, 9, 4, 5, 6, 10])))
-    files, rows = file_rows(app)
+    files, rows = models.file_rows(np.array([0, 8, 2, 9, 4, 5, 6, 10]))
     assert files.tolist() == [0, 0, 0, 0, 0, 1, 1, 1]
     assert rows.tolist() == [0, 1, 2, 3, 4, 0, 1, 2]
     assert models.size == 11
@@ -483,11 +480,11 @@ app = ViewerApp(Paths(model={str(model)!r}, out=str(OUT / "out")))
 
 def test(ctx):
     wait(ctx, lambda: app.view is not None and app.view.has_model(0), 60, "the model")
-    n1 = app.editor.count
-    on_gl_thread(ctx, lambda: set_world(app, np.array({world.tolist()!r})))
+    n1 = app.document.editor.count
+    on_gl_thread(ctx, lambda: set_world(app.document, app.session, app.ui, np.array({world.tolist()!r})))
     app.on_drop(None, [{str(second)!r}])
     ctx.yield_(3)
-    means = app.editor.model.means.astype(float)
+    means = app.document.editor.model.means.astype(float)
     mid = means.mean(axis=0)
     app.view.camera = ViewerCamera.looking_at(mid + np.array([0.0, -16.0, -80.0]), mid, up=(0.0, -1.0, 0.0))
     app.view.moved()
@@ -495,22 +492,22 @@ def test(ctx):
     ctx.set_ref("")
     ctx.key_press(imgui.Key.g)
     settle(ctx, 0.3)
-    rows = np.arange(app.editor.count) >= n1
+    rows = np.arange(app.document.editor.count) >= n1
     centre = means[rows].mean(axis=0)
     start = on_screen(centre)[0]
     drag(ctx, start, (-40, 30))
-    after = app.editor.model.means.astype(float)
+    after = app.document.editor.model.means.astype(float)
     found["moved_px"] = (on_screen(after[rows].mean(axis=0))[0] - start).tolist()
-    found["still"] = bool(np.array_equal(app.editor.model.means[~rows], means[~rows].astype(np.float32)))
-    np.save(OUT / "shown.npy", app.editor.model.means)
-    found["part"] = app.scene_models.parts[-1].transform.tolist()
-    app.export.path = str(OUT / "merged.ply")
+    found["still"] = bool(np.array_equal(app.document.editor.model.means[~rows], means[~rows].astype(np.float32)))
+    np.save(OUT / "shown.npy", app.document.editor.model.means)
+    found["part"] = app.document.models.parts[-1].transform.tolist()
+    app.ui.export.path = str(OUT / "merged.ply")
     open_window(ctx, "Edit")
     ctx.item_click("Export")
     app.save_project(str(OUT / "world.splatproj"))
 
 run(app, test)
-found["error"] = app.error
+found["error"] = app.ui.messages.error
 Path(os.environ["RESULT"]).write_text(json.dumps(found))
 """, tmp_path)
     assert found["error"] == "", found["error"]

@@ -24,14 +24,14 @@ def test_x11_two_models_on_screen_and_the_gizmo_on_selection_box_and_model(demo_
     found = run_gui(PRELUDE + LOOK + f"""
 import pickle
 from imgui_bundle import imgui
-from app.viewer import gizmo
+from app.viewer import gestures
 from app.viewer.camera_control import ViewerCamera
 from app.viewer.selection import in_box
 from training.scene.image_io import write_image
 app = ViewerApp(Paths(model={str(model)!r}, out=str(OUT / "out")))
 
 def on_screen(points):
-    return gizmo._project(app, np.asarray(points, float).reshape(-1, 3))[0]
+    return gestures.on_screen(app.ui, np.asarray(points, float).reshape(-1, 3))[0]
 
 def drag_and_shoot(ctx, start, offset, name):
     ctx.mouse_move_to_pos(imgui.ImVec2(float(start[0]), float(start[1])))
@@ -46,14 +46,14 @@ def drag_and_shoot(ctx, start, offset, name):
 
 def test(ctx):
     wait(ctx, lambda: app.view is not None and app.view.has_model(0), 60, "the model")
-    n1 = app.editor.count
+    n1 = app.document.editor.count
     app.on_drop(None, [{str(second)!r}])
     ctx.yield_(3)
-    app.editor.select_none()
-    means = app.editor.model.means.astype(float)
+    app.document.editor.select_none()
+    means = app.document.editor.model.means.astype(float)
     mid = means.mean(axis=0)
     app.view.camera = ViewerCamera.looking_at(mid + np.array([0.0, -8.0, -36.0]), mid, up=(0.0, -1.0, 0.0))
-    app.export.path = str(OUT / "merged.ply")
+    app.ui.export.path = str(OUT / "merged.ply")
     open_window(ctx, "Edit")
     ctx.item_click("Export")
     record("merged", ctx)
@@ -61,64 +61,64 @@ def test(ctx):
     found["origin"] = list(window_origin())
     rotation = app.view.camera.rotation.copy()
     # the selection: the first model's right half, moved
-    app.editor.select(np.arange(app.editor.count) < n1)
-    app.editor.select(means[:, 0] > np.median(means[:n1, 0]), "remove")
-    app.gizmo.target = "selection"  # adding the model made it the gizmo's target
+    app.document.editor.select(np.arange(app.document.editor.count) < n1)
+    app.document.editor.select(means[:, 0] > np.median(means[:n1, 0]), "remove")
+    app.ui.gizmo.target = "selection"  # adding the model made it the gizmo's target
     ctx.set_ref("")
     ctx.key_press(imgui.Key.g)
-    sel = app.editor.selected.copy()
-    before = app.editor.model.means.copy()
+    sel = app.document.editor.selected.copy()
+    before = app.document.editor.model.means.copy()
     drag_and_shoot(ctx, on_screen(before[sel].mean(axis=0))[0], (30, -60), "selection")
-    found["selection_moved"] = float(np.abs(app.editor.model.means[sel] - before[sel]).max())
-    found["others_still"] = bool(np.array_equal(app.editor.model.means[~sel], before[~sel]))
-    app.editor.select_none()
+    found["selection_moved"] = float(np.abs(app.document.editor.model.means[sel] - before[sel]).max())
+    found["others_still"] = bool(np.array_equal(app.document.editor.model.means[~sel], before[~sel]))
+    app.document.editor.select_none()
     # the crop box around the second model, moved onto part of it, then Crop uses it
     box = np.array([means[n1:].min(axis=0), means[n1:].max(axis=0)])
-    app.edit.box = [list(box[0]), list(box[1])]
-    app.gizmo.target = "box"
+    app.ui.edit.box = [list(box[0]), list(box[1])]
+    app.ui.gizmo.target = "box"
     settle(ctx, 0.3)
     drag_and_shoot(ctx, on_screen(box.mean(axis=0))[0], (-90, 0), "crop_box")
-    found["box_shift"] = (np.array(app.edit.box) - box).tolist()
-    count = app.editor.count
-    inside = int(in_box(app.editor.model.means, *np.array(app.edit.box)).sum())
+    found["box_shift"] = (np.array(app.ui.edit.box) - box).tolist()
+    count = app.document.editor.count
+    inside = int(in_box(app.document.editor.model.means, *np.array(app.ui.edit.box)).sum())
     open_window(ctx, "Edit")
     ctx.item_click("Crop to box")
-    found["after_crop"], found["expected_crop"], found["before_crop"] = app.editor.count, inside, count
+    found["after_crop"], found["expected_crop"], found["before_crop"] = app.document.editor.count, inside, count
     ctx.key_press(imgui.Key.mod_ctrl | imgui.Key.z)
     settle(ctx, 0.3)
-    found["count_after_undo"] = app.editor.count
+    found["count_after_undo"] = app.document.editor.count
     ctx.key_press(imgui.Key.mod_ctrl | imgui.Key.z)  # the box drag is a step of its own
     settle(ctx, 0.3)
-    found["box_after_second_undo"] = np.array(app.edit.box).tolist()
+    found["box_after_second_undo"] = np.array(app.ui.edit.box).tolist()
     ctx.key_press(imgui.Key.mod_ctrl | imgui.Key.y)
     settle(ctx, 0.3)
-    found["box_after_redo"] = np.array(app.edit.box).tolist()
+    found["box_after_redo"] = np.array(app.ui.edit.box).tolist()
     # the second model, turned about its centre... shown on screen, and moved by a drag
     ctx.set_ref("")
-    app.gizmo.target = "model:1"
+    app.ui.gizmo.target = "model:1"
     ctx.key_press(imgui.Key.t)
     settle(ctx, 0.8)
     write_image(OUT / "gizmo_model_turn.png", x_screen() / 255.0)
     ctx.key_press(imgui.Key.g)
-    before = app.editor.model.means.copy()
-    rows = np.arange(app.editor.count) >= n1
+    before = app.document.editor.model.means.copy()
+    rows = np.arange(app.document.editor.count) >= n1
     drag_and_shoot(ctx, on_screen(before[rows].mean(axis=0))[0], (0, 70), "second_model")
-    found["model_moved"] = float(np.abs(app.editor.model.means[rows] - before[rows]).max())
-    found["model_others_still"] = bool(np.array_equal(app.editor.model.means[~rows], before[~rows]))
+    found["model_moved"] = float(np.abs(app.document.editor.model.means[rows] - before[rows]).max())
+    found["model_others_still"] = bool(np.array_equal(app.document.editor.model.means[~rows], before[~rows]))
     found["camera_turned"] = float(np.abs(app.view.camera.rotation - rotation).max())
     # a pick for the alignment runs a depth pass inside imgui's frame: the window must still show everything
     open_window(ctx, "Edit")
     ctx.item_click("Align second by 3 point pairs")
     ctx.set_ref("")
-    xy = on_screen(app.editor.model.means[rows].astype(float).mean(axis=0))[0]
+    xy = on_screen(app.document.editor.model.means[rows].astype(float).mean(axis=0))[0]
     ctx.mouse_move_to_pos(imgui.ImVec2(float(xy[0]), float(xy[1])))
     ctx.mouse_click(0)
     settle(ctx, 1.0)
     np.save(OUT / "after_pick.npy", x_screen())
-    found["picked"] = len(app.gizmo.align.moving)
+    found["picked"] = len(app.ui.gizmo.align.moving)
 
 run(app, test)
-found["error"] = app.error
+found["error"] = app.ui.messages.error
 Path(os.environ["RESULT"]).write_text(json.dumps(found))
 """, tmp_path, env=x11_env(x_server))
     assert found["error"] == "", found["error"]

@@ -40,7 +40,7 @@ def test(ctx):
     open_window(ctx, "Style")
     changed_at = app.session.status().step     # steps up to this one finished before the change
     ctx.item_input_value("tau", 0.05)          # the slider, through the UI
-    found["tau_in_panel"] = app.training.stylize.tau
+    found["tau_in_panel"] = app.ui.training.stylize.tau
     new_tau = lambda h: abs(h.get("tau", 0.0) - 0.05) < 1e-6  # the slider holds float32
     wait(ctx, lambda: any(new_tau(h) for h in list(app.session.history)), 60,
          "a step that used the new tau")
@@ -50,7 +50,7 @@ def test(ctx):
     found["changed_at"] = changed_at
     open_window(ctx, "View order")
     ctx.yield_(3)
-    found["drawn_order"] = list(app.window.drawn_order)
+    found["drawn_order"] = list(app.ui.window.drawn_order)
     found["trainer_order"] = [item.source_index for item in trainer.trajectory if not item.is_virtual]
     found["capacity_shape"] = list(trainer.capacity_map().shape)
     open_window(ctx, "Edit")
@@ -58,8 +58,8 @@ def test(ctx):
     open_window(ctx, "Style")
     ctx.combo_click("stylize/only the selection")
     ctx.yield_(2)
-    found["selected"] = int(app.editor.selected.sum())
-    found["mask_is_selection"] = bool(np.array_equal(trainer.mask, app.editor.selected))
+    found["selected"] = int(app.document.editor.selected.sum())
+    found["mask_is_selection"] = bool(np.array_equal(trainer.mask, app.document.editor.selected))
     open_window(ctx, "Training")
     ctx.item_click("Pause")
     wait(ctx, lambda: app.session.status().state == "paused", 30, "the pause")
@@ -80,7 +80,7 @@ def test(ctx):
 
 run(app, test)
 found["saved"] = [str(p) for p in app.session.saved]
-found["error"] = app.error
+found["error"] = app.ui.messages.error
 Path(os.environ["RESULT"]).write_text(json.dumps(found))
 """, tmp_path)
     assert found["error"] == "", found["error"]
@@ -133,7 +133,7 @@ import numpy as np
 app = ViewerApp(Paths(model={str(model)!r}, data={str(scene_dir)!r}, out=str(OUT / "out")))
 
 def test(ctx):
-    ed = app.editor
+    ed = app.document.editor
     found["n0"] = ed.count
     means = ed.model.means
     lo = np.percentile(means, 20, axis=0)
@@ -143,7 +143,7 @@ def test(ctx):
     for axis in range(3):  # typed into the panel's box fields, as a user does
         ctx.item_input_value(f"box min/$${{axis}}", float(lo[axis]))
         ctx.item_input_value(f"box max/$${{axis}}", float(hi[axis]))
-    found["box_in_panel"] = [list(app.edit.box[0]), list(app.edit.box[1])]
+    found["box_in_panel"] = [list(app.ui.edit.box[0]), list(app.ui.edit.box[1])]
     ctx.item_click("Select in box")
     found["selected"] = int(ed.selected.sum())
     ctx.item_click("Delete")
@@ -160,7 +160,7 @@ def test(ctx):
     ctx.yield_(2)
 
 run(app, test)
-found["error"] = app.error
+found["error"] = app.ui.messages.error
 Path(os.environ["RESULT"]).write_text(json.dumps(found))
 """, tmp_path)
     from training.model.ply_io import read_ply
@@ -188,18 +188,18 @@ app = ViewerApp(Paths(model={str(model)!r}, data={str(scene_dir)!r}, out=str(OUT
 def test(ctx):
     open_window(ctx, "Camera path")
     ctx.item_click("Dataset trajectory")
-    found["keyframes"] = len(app.path.keys)
+    found["keyframes"] = len(app.document.camera_path.keyframes)
     ctx.item_input_value("seconds", 1.0)
     ctx.item_input_value("fps", 12)
     ctx.item_input_value("size/$$0", 96)
     ctx.item_input_value("size/$$1", 64)
     ctx.item_input_value("video file", str(OUT / "path.mp4"))
     ctx.item_click("Render video")
-    wait(ctx, lambda: app.path.job is None, 120, "the video")
-    found["messages"] = app.messages[-2:]
+    wait(ctx, lambda: app.ui.video.job is None, 120, "the video")
+    found["messages"] = app.ui.messages.lines[-2:]
 
 run(app, test)
-found["error"] = app.error
+found["error"] = app.ui.messages.error
 Path(os.environ["RESULT"]).write_text(json.dumps(found))
 """, tmp_path)
     import imageio
@@ -220,6 +220,8 @@ def test_edits_sliders_masks_and_exports_never_race_the_running_trainer(demo_sce
     found = run_gui(PRELUDE + f"""
 import random
 from app.viewer import export_panel
+from app.viewer.runs import set_style_region
+from app.viewer.style_panel import set_stylize
 from app.viewer.selection import in_sphere
 app = ViewerApp(Paths(model={str(model)!r}, data={str(scene_dir)!r}, style={str(style)!r}, out=str(OUT / "out")),
                 start="stylize", stylize_overrides={{"max_side": 48, "iters_per_view": 200}})
@@ -228,30 +230,31 @@ rng = random.Random(7)
 def test(ctx):
     wait(ctx, lambda: app.session.status().state == "running" and app.session.status().step >= 2, 180,
          "the stylizer to run")
-    app.edit_live()
-    found["n0"] = app.editor.count
+    from app.viewer.runs import edit_live
+    edit_live(app.document, app.session, app.ui)
+    found["n0"] = app.document.editor.count
     counts = {{"delete": 0, "slider": 0, "region": 0, "export": 0}}
     for i in range(200):
         what = rng.choice(["delete", "slider", "slider", "region", "export"])
-        ed = app.editor
+        ed = app.document.editor
         if what == "delete" and ed.count > 500:
             centre = ed.model.means[rng.randrange(ed.count)]
             ed.select(in_sphere(ed.model.means, centre, 0.3), "set")
             if ed.selected.any():
                 ed.delete()
         elif what == "slider":
-            app.set_stylize(tau=rng.uniform(0.05, 2.0), lambda_content=rng.uniform(0.0, 0.05))
+            set_stylize(app.session, app.ui, tau=rng.uniform(0.05, 2.0), lambda_content=rng.uniform(0.0, 0.05))
         elif what == "region":
             ed.select(in_sphere(ed.model.means, ed.model.means[rng.randrange(ed.count)], 1.0), "set")
-            app.set_style_region(rng.choice(["all", "selection", "unselected"]))
+            set_style_region(app.document, app.session, app.ui, rng.choice(["all", "selection", "unselected"]))
         else:
-            app.export.path = str(OUT / "exports" / f"export_{{i:03d}}.ply")
-            export_panel.write(app)
+            app.ui.export.path = str(OUT / "exports" / f"export_{{i:03d}}.ply")
+            export_panel.write(app.document, app.session, app.ui)
         counts[what] += 1
         ctx.yield_(1)
-    wait(ctx, lambda: not app.training.pending, 120, "the trainer to take every change")
+    wait(ctx, lambda: not app.ui.training.pending, 120, "the trainer to take every change")
     found["counts"] = counts
-    found["index"] = app.editor.index.tolist()
+    found["index"] = app.document.editor.index.tolist()
     found["step_at_end"] = app.session.status().step
     app.session.pause()
     wait(ctx, lambda: app.session.status().state == "paused", 60, "the pause")
@@ -260,9 +263,9 @@ def test(ctx):
     found["final_sh_finite"] = bool(np.isfinite(final.sh.detach().numpy()).all())
 
 run(app, test)
-found["error"] = app.error
-found["messages"] = [m for m in app.messages if m.startswith("error")]
-found["exports"] = [str(p) for p in app.export.written]
+found["error"] = app.ui.messages.error
+found["messages"] = [m for m in app.ui.messages.lines if m.startswith("error")]
+found["exports"] = [str(p) for p in app.ui.export.written]
 Path(os.environ["RESULT"]).write_text(json.dumps(found))
 """, tmp_path, timeout=600)
     from training.model.ply_io import read_ply
@@ -300,12 +303,12 @@ app = ViewerApp(Paths(out=str(OUT / "out")))
 def test(ctx):
     app.on_drop(None, [{str(model)!r}, {str(style)!r}, {str(scene_dir)!r}, {str(other)!r}])
     ctx.yield_(3)
-    found["model"] = app.paths.model
-    found["count"] = app.editor.count if app.editor is not None else 0
-    found["style"] = app.paths.style
-    found["painting_shape"] = list(app.style_image.shape) if app.style_image is not None else []
-    found["cameras"] = len(app.scene.cameras)
-    found["error"] = app.error
+    found["model"] = app.ui.paths.model
+    found["count"] = app.document.editor.count if app.document.editor is not None else 0
+    found["style"] = app.ui.paths.style
+    found["painting_shape"] = list(app.document.painting.image.shape) if app.document.painting is not None else []
+    found["cameras"] = len(app.document.cameras)
+    found["error"] = app.ui.messages.error
 
 run(app, test)
 Path(os.environ["RESULT"]).write_text(json.dumps(found))
@@ -324,13 +327,12 @@ def test_a_saved_project_opens_to_the_same_model_view_and_keyframes(demo_scene, 
     project = tmp_path / "session.splatproj"
     first = run_gui(PRELUDE + f"""
 from app.viewer import colour_view as cv
-from app.viewer.scene_models import transform_rows
 from app.viewer.selection import in_sphere
 from training.model.colour_edit import ColourAdjustment
 app = ViewerApp(Paths(model={str(model)!r}, data={str(scene_dir)!r}, style={str(style)!r}, out=str(OUT / "a")))
 
 def test(ctx):
-    ed = app.editor
+    ed = app.document.editor
     means = ed.model.means
     ed.select(in_sphere(means, means[0], 1.0), "set")
     ed.delete()
@@ -341,10 +343,10 @@ def test(ctx):
     turn = np.eye(4)  # what a gizmo drag hands over: a similarity in the view's world
     turn[:3, :3] = [[0.8, -0.6, 0.0], [0.6, 0.8, 0.0], [0.0, 0.0, 1.0]]
     turn[:3, 3] = [0.3, -0.2, 0.1]
-    transform_rows(app, ed.selected.copy(), turn)
+    app.document.transform(ed.selected.copy(), turn)
     ed.select(in_sphere(ed.model.means, ed.model.means[5], 1.2), "set")
-    region = cv.region_mask(app, "selection")
-    cv.set_edits(app, cv.with_adjustment(cv.edits_of(app), region, ColourAdjustment(brightness=0.2, hue=40.0)))
+    region = cv.region_mask(app.document, "selection")
+    app.document.set_colour(cv.with_adjustment(app.document.colour, region, ColourAdjustment(brightness=0.2, hue=40.0)))
     ed.select(in_sphere(ed.model.means, ed.model.means[20], 0.8), "set")
     app.view.camera.orbit(40.0, 10.0)
     app.view.moved()
@@ -366,16 +368,16 @@ def test(ctx):
     found["index"] = ed.index.tolist()
     found["selected"] = ed.selected.tolist()
     found["hidden"] = ed.hidden.tolist()
-    found["keys"] = len(app.path.keys)
+    found["keys"] = len(app.document.camera_path.keyframes)
     found["rotation"] = app.view.camera.rotation.tolist()
     found["position"] = app.view.camera.position.tolist()
-    shown = cv.displayed(app, ed.model)
+    shown = cv.displayed(app.document, app.session, ed.model)
     np.save(OUT / "means_a.npy", shown.means)
     np.save(OUT / "sh_a.npy", shown.sh)
 
 run(app, test)
-found["project"] = app.project.path
-found["error"] = app.error
+found["project"] = app.ui.project.path
+found["error"] = app.ui.messages.error
 Path(os.environ["RESULT"]).write_text(json.dumps(found))
 """, tmp_path)
     assert first["error"] == "", first["error"]
@@ -388,8 +390,8 @@ Path(os.environ["RESULT"]).write_text(json.dumps(found))
 app = ViewerApp(Paths(out=str(OUT / "b")), project={str(project)!r})
 
 def test(ctx):
-    wait(ctx, lambda: app.editor is not None, 60, "the project's model")
-    ed = app.editor
+    wait(ctx, lambda: app.document.editor is not None, 60, "the project's model")
+    ed = app.document.editor
     app.view.moved()
     settle(ctx, 0.6)
     wait(ctx, lambda: not app.view.needs_draw(False), 60, "the still view")
@@ -397,18 +399,18 @@ def test(ctx):
     found["count"] = ed.count
     found["selected"] = ed.selected.tolist()
     found["hidden"] = ed.hidden.tolist()
-    found["keys"] = len(app.path.keys)
+    found["keys"] = len(app.document.camera_path.keyframes)
     found["rotation"] = app.view.camera.rotation.tolist()
     found["position"] = app.view.camera.position.tolist()
-    found["data"], found["style"] = app.paths.data, app.paths.style
+    found["data"], found["style"] = app.ui.paths.data, app.ui.paths.style
     from app.viewer.colour_view import displayed
 
-    shown = displayed(app, ed.model)
+    shown = displayed(app.document, app.session, ed.model)
     np.save(OUT / "means_b.npy", shown.means)
     np.save(OUT / "sh_b.npy", shown.sh)
 
 run(app, test)
-found["error"] = app.error
+found["error"] = app.ui.messages.error
 Path(os.environ["RESULT"]).write_text(json.dumps(found))
 """, tmp_path)
     assert second["error"] == "", second["error"]

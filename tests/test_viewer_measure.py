@@ -25,7 +25,7 @@ def demo_scene(tmp_path_factory):
 
 PICKING = """
 from imgui_bundle import imgui
-from app.viewer.edit_panel import view_camera
+from app.viewer.gestures import view_camera
 
 def still(ctx):
     app.view.moved()
@@ -35,7 +35,7 @@ def still(ctx):
 def rendered(ctx):
     # the camera and the depth the renderer draws for it, on the window's thread (GL is current only there)
     def read():
-        cam = view_camera(app)
+        cam = view_camera(app.ui)
         return cam, app.view.renderer.render_arrays(cam, ("alpha", "depth"))
     return on_gl_thread(ctx, read)
 
@@ -47,7 +47,7 @@ def two_solid_pixels(alpha):
 
 def click_pixel(ctx, ix, iy):
     scale = imgui.get_io().display_framebuffer_scale
-    left, top = app.window.view_rect[:2]
+    left, top = app.ui.window.view_rect[:2]
     ctx.mouse_move_to_pos(imgui.ImVec2(left + (ix + 0.5) / scale.x, top + (iy + 0.5) / scale.y))
     ctx.mouse_click(0)
     ctx.yield_(2)
@@ -57,11 +57,11 @@ def click_pixel(ctx, ix, iy):
 def test_measure_rescale_undo_up_and_export_of_the_project(demo_scene, tmp_path):
     scene_dir, _, model = demo_scene
     found = run_gui(PRELUDE + PICKING + f"""
-from app.viewer.world_edit import distance, world_of
+from app.viewer.world_edit import distance
 app = ViewerApp(Paths(model={str(model)!r}, data={str(scene_dir)!r}, out=str(OUT / "out")))
 
 def centres():
-    return [c.center.tolist() for c in app.scene.cameras]
+    return [c.center.tolist() for c in app.document.cameras]
 
 def test(ctx):
     wait(ctx, lambda: app.view is not None and app.view.has_model(0), 60, "the model")
@@ -76,42 +76,42 @@ def test(ctx):
     found["depths"] = [float(out["depth"][iy, ix]) for ix, iy in pixels]
     found["K"] = [cam.fx, cam.fy, cam.cx, cam.cy]
     found["w2c"] = cam.world_to_camera.tolist()
-    found["picked"] = [p.tolist() for p in app.world.points]
-    found["distance"] = distance(app)
-    before, cameras_before = app.editor.model, list(app.scene.cameras)
+    found["picked"] = [p.tolist() for p in app.ui.world.points]
+    found["distance"] = distance(app.ui.world)
+    before, cameras_before = app.document.editor.model, list(app.document.cameras)
     found["centres_before"] = centres()
     open_window(ctx, "Scale and up")
     ctx.item_input_value("known length", 0.75)
     ctx.item_click("Rescale to this length")
     ctx.yield_(2)
-    found["means_ratio"] = (app.editor.model.means.astype(np.float64) / before.means).tolist()
-    found["scales_ratio"] = (app.editor.model.scales.astype(np.float64) / before.scales).tolist()
+    found["means_ratio"] = (app.document.editor.model.means.astype(np.float64) / before.means).tolist()
+    found["scales_ratio"] = (app.document.editor.model.scales.astype(np.float64) / before.scales).tolist()
     found["centres_scaled"] = centres()
-    found["distance_scaled"] = distance(app)
+    found["distance_scaled"] = distance(app.ui.world)
     ctx.set_ref("")
     ctx.key_press(imgui.Key.mod_ctrl.value | imgui.Key.z.value)  # undo, as a user does
     ctx.yield_(2)
-    found["undo_same_model"] = app.editor.model is before
-    found["undo_same_cameras"] = all(a is b for a, b in zip(app.scene.cameras, cameras_before))
-    found["undo_world"] = world_of(app).tolist()
-    found["distance_undone"] = distance(app)
+    found["undo_same_model"] = app.document.editor.model is before
+    found["undo_same_cameras"] = all(a is b for a, b in zip(app.document.cameras, cameras_before))
+    found["undo_world"] = app.document.world.tolist()
+    found["distance_undone"] = distance(app.ui.world)
     open_window(ctx, "Scale and up")
     ctx.item_click("Up from the cameras")
     ctx.yield_(2)
-    found["ups"] = [(-c.camera_to_world[:3, 1]).tolist() for c in app.scene.cameras]
+    found["ups"] = [(-c.camera_to_world[:3, 1]).tolist() for c in app.document.cameras]
     found["view_up"] = app.view.camera.up.tolist()
     ctx.item_input_value("known length", 2.0)
     ctx.item_click("Rescale to this length")
     ctx.yield_(2)
-    found["world"] = world_of(app).tolist()
-    found["shown_means"] = app.editor.model.means.tolist()
+    found["world"] = app.document.world.tolist()
+    found["shown_means"] = app.document.editor.model.means.tolist()
     ctx.set_ref("##MainMenuBar")
     ctx.menu_click("File/Save project")
     ctx.yield_(2)
 
 run(app, test)
-found["project"] = app.project.path
-found["error"] = app.error
+found["project"] = app.ui.project.path
+found["error"] = app.ui.messages.error
 Path(os.environ["RESULT"]).write_text(json.dumps(found))
 """, tmp_path)
     assert found["error"] == "", found["error"]

@@ -13,21 +13,20 @@ from tests.viewer_harness import PRELUDE, run_gui, xvfb_missing
 
 pytestmark = [pytest.mark.slow, pytest.mark.skipif(bool(xvfb_missing()), reason=xvfb_missing() or "ok")]
 
-LINE = (120, 255, 60)  # measure_panel.LINE
+LINE = (120, 255, 60)  # gestures.PICK_LINE
 
 
 def test_x11_measure_line_and_floor_levelling_on_screen(demo_scene, x_server, tmp_path):
     scene_dir, _, model = demo_scene
     found = run_gui(PRELUDE + LOOK + PICKING + f"""
-from app.viewer.selection import project
 from app.viewer.world_edit import distance
 app = ViewerApp(Paths(model={str(model)!r}, data={str(scene_dir)!r}, out=str(OUT / "out")))
 
 def on_screen(points):
     # window coordinates of world points in the view, and the screen offset of the window
-    uv, _ = project(np.array(points), view_camera(app))
+    uv, _ = view_camera(app.ui).project(np.array(points))
     ox, oy = window_origin()
-    left, top = app.window.view_rect[:2]
+    left, top = app.ui.window.view_rect[:2]
     return [[ox + left + u, oy + top + v] for u, v in uv]
 
 def shot(name):
@@ -46,8 +45,8 @@ def test(ctx):
     cam, out = rendered(ctx)
     for ix, iy in two_solid_pixels(out["alpha"]):
         click_pixel(ctx, ix, iy)
-    found["measure_ends"] = on_screen(app.world.points)
-    found["distance"] = distance(app)
+    found["measure_ends"] = on_screen(app.ui.world.points)
+    found["distance"] = distance(app.ui.world)
     shot("measure")
     ctx.item_click("Pick the floor")
     ys, xs = np.nonzero(out["alpha"] > 0.98)
@@ -58,8 +57,8 @@ def test(ctx):
         picks.append((int(np.percentile(cols, q)), int(row)))
     for ix, iy in picks:
         click_pixel(ctx, ix, iy)
-    found["floor_points"] = len(app.world.points)
-    found["floor_corners"] = on_screen(app.world.points)
+    found["floor_points"] = len(app.ui.world.points)
+    found["floor_corners"] = on_screen(app.ui.world.points)
     shot("floor_picked")
     still(ctx)
     before = view_region(x_screen())
@@ -72,7 +71,7 @@ def test(ctx):
     shot("floor_levelled")
 
 run(app, test)
-found["error"] = app.error
+found["error"] = app.ui.messages.error
 Path(os.environ["RESULT"]).write_text(json.dumps(found))
 """, tmp_path, env=x11_env(x_server))
     assert found["error"] == "", found["error"]

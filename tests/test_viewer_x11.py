@@ -62,7 +62,7 @@ def headless_render(model, camera) -> np.ndarray:
 LOOK = """
 def view_region(screen):
     ox, oy = window_origin()
-    x, y, w, h = app.window.view_rect
+    x, y, w, h = app.ui.window.view_rect
     return screen[oy + y: oy + y + h, ox + x: ox + x + w]
 
 def still_frame(ctx):
@@ -80,7 +80,7 @@ def record(name, ctx):
     np.save(OUT / f"{name}_region.npy", region)
     with open(OUT / f"{name}_camera.pkl", "wb") as f:
         pickle.dump(app.view.camera.camera(region.shape[1], region.shape[0]), f)
-    found[name] = {"rect": list(app.window.view_rect), "origin": list(window_origin())}
+    found[name] = {"rect": list(app.ui.window.view_rect), "origin": list(window_origin())}
 """
 
 
@@ -106,24 +106,24 @@ def test(ctx):
     ctx.set_ref("")
     ctx.key_press(imgui.Key.h)
     settle(ctx, 0.5)
-    found["help_shown"] = app.window.show_help
+    found["help_shown"] = app.ui.window.show_help
     ctx.key_press(imgui.Key.h)
     record("help_closed", ctx)
     # a rectangle selection dragged across the view and cleared: no trail of rectangles
-    x, y, w, h = app.window.view_rect
-    app.edit.tool = "rect"
+    x, y, w, h = app.ui.window.view_rect
+    app.ui.edit.tool = "rect"
     ctx.mouse_move_to_pos(imgui.ImVec2(x + w * 0.3, y + h * 0.3))
     ctx.mouse_down(0)
     for t in np.linspace(0.3, 0.7, 8):
         ctx.mouse_move_to_pos(imgui.ImVec2(x + w * t, y + h * t))
     ctx.mouse_up(0)
-    found["selected_by_drag"] = int(app.editor.selected.sum())
-    app.edit.tool = "orbit"
-    app.editor.select_none()
+    found["selected_by_drag"] = int(app.document.editor.selected.sum())
+    app.ui.edit.tool = "orbit"
+    app.document.editor.select_none()
     record("after_drag", ctx)
 
 run(app, test)
-found["error"] = app.error
+found["error"] = app.ui.messages.error
 Path(os.environ["RESULT"]).write_text(json.dumps(found))
 """, tmp_path, env=x11_env(x_server))
     assert found["error"] == "", found["error"]
@@ -162,30 +162,30 @@ def region(screen, rect):
 def test(ctx):
     wait(ctx, lambda: app.session.status().state == "running" and app.session.status().step >= 2, 180,
          "the stylizer to run")
-    app.training.refresh_s = 0.5
-    wait(ctx, lambda: app.training.shown_step is not None, 60, "the first live model on screen")
+    app.ui.training.refresh_s = 0.5
+    wait(ctx, lambda: app.ui.training.shown_step is not None, 60, "the first live model on screen")
     settle(ctx, 0.5)
-    first_step, first = app.training.shown_step, view_region(x_screen())
+    first_step, first = app.ui.training.shown_step, view_region(x_screen())
     open_window(ctx, "Style")
     ctx.item_input_value("tau", 0.05)          # the slider, through the UI
     new_tau = lambda h: abs(h.get("tau", 0.0) - 0.05) < 1e-6
     wait(ctx, lambda: any(new_tau(h) for h in list(app.session.history)), 90, "a step that used the new tau")
     found["tau_after"] = app.session.trainer.config.tau
-    wait(ctx, lambda: app.training.shown_step >= first_step + 40, 180, "the view to show 40 steps later")
+    wait(ctx, lambda: app.ui.training.shown_step >= first_step + 40, 180, "the view to show 40 steps later")
     settle(ctx, 0.5)
     later = view_region(x_screen())
     found["view_change"] = float(np.abs(later.astype(float) - first.astype(float)).mean())
     found["view_std"] = float(later.std())
     ctx.item_click("capacity map")             # off: the painting alone
     settle(ctx, 0.5)
-    np.save(OUT / "painting_plain.npy", region(x_screen(), app.window.painting_rect))
+    np.save(OUT / "painting_plain.npy", region(x_screen(), app.ui.window.painting_rect))
     ctx.item_click("capacity map")             # on again: the map over it
     settle(ctx, 0.5)
-    np.save(OUT / "painting_map.npy", region(x_screen(), app.window.painting_rect))
+    np.save(OUT / "painting_map.npy", region(x_screen(), app.ui.window.painting_rect))
     found["capacity_shape"] = list(app.session.trainer.capacity_map().shape)
 
 run(app, test)
-found["error"] = app.error
+found["error"] = app.ui.messages.error
 Path(os.environ["RESULT"]).write_text(json.dumps(found))
 """, tmp_path, env=x11_env(x_server))
     from training.stylize.style_image import load_style_image
@@ -219,11 +219,11 @@ gui, post_init = app.gui, app.post_init
 def post():
     post_init()
     for _ in range(3):  # three deletions to undo (each one undo step)
-        app.editor.keep(np.arange(app.editor.count) >= 100)
+        app.document.editor.keep(np.arange(app.document.editor.count) >= 100)
 
 def frame():
     gui()
-    state = {"count": app.editor.count, "rotation": app.view.camera.rotation.tolist(), "rect": list(app.window.view_rect)}
+    state = {"count": app.document.editor.count, "rotation": app.view.camera.rotation.tolist(), "rect": list(app.ui.window.view_rect)}
     (OUT / "state.tmp").write_text(json.dumps(state))
     (OUT / "state.tmp").replace(OUT / "state.json")
     if (OUT / "quit").exists():
@@ -295,23 +295,22 @@ def test_x11_a_saved_project_opens_to_the_same_picture(demo_scene, x_server, tmp
     first = run_gui(PRELUDE + LOOK + f"""
 import pickle
 from app.viewer import colour_view as cv
-from app.viewer.scene_models import transform_rows
 from app.viewer.selection import in_sphere
 from training.model.colour_edit import ColourAdjustment
 app = ViewerApp(Paths(model={str(model)!r}, data={str(scene_dir)!r}, style={str(style)!r}, out=str(OUT / "a")))
 
 def test(ctx):
     wait(ctx, lambda: app.view is not None and app.view.has_model(0), 60, "the model")
-    ed = app.editor
+    ed = app.document.editor
     ed.select(in_sphere(ed.model.means, ed.model.means[0], 1.0), "set")
     ed.delete()
     ed.select(in_sphere(ed.model.means, ed.model.means[30], 1.0), "set")
     turn = np.eye(4)  # a gizmo drag's similarity in the view's world
     turn[:3, :3] = [[0.8, -0.6, 0.0], [0.6, 0.8, 0.0], [0.0, 0.0, 1.0]]
     turn[:3, 3] = [0.3, -0.2, 0.1]
-    transform_rows(app, ed.selected.copy(), turn)
+    app.document.transform(ed.selected.copy(), turn)
     ed.select(in_sphere(ed.model.means, ed.model.means[5], 1.5), "set")
-    cv.set_edits(app, cv.with_adjustment(cv.edits_of(app), cv.region_mask(app, "selection"),
+    app.document.set_colour(cv.with_adjustment(app.document.colour, cv.region_mask(app.document, "selection"),
                                          ColourAdjustment(brightness=0.25, hue=60.0)))
     ed.select_none()
     app.view.camera.orbit(30.0, 8.0)
@@ -322,8 +321,8 @@ def test(ctx):
     record("saved", ctx)
 
 run(app, test)
-found["project"] = app.project.path
-found["error"] = app.error
+found["project"] = app.ui.project.path
+found["error"] = app.ui.messages.error
 Path(os.environ["RESULT"]).write_text(json.dumps(found))
 """, tmp_path, env=x11_env(x_server))
     assert first["error"] == "", first["error"]
@@ -334,10 +333,10 @@ app = ViewerApp(Paths(out=str(OUT / "b")), project={first["project"]!r})
 def test(ctx):
     wait(ctx, lambda: app.view is not None and app.view.has_model(0), 60, "the project's model")
     record("opened", ctx)
-    found["keys"] = len(app.path.keys)
+    found["keys"] = len(app.document.camera_path.keyframes)
 
 run(app, test)
-found["error"] = app.error
+found["error"] = app.ui.messages.error
 Path(os.environ["RESULT"]).write_text(json.dumps(found))
 """, tmp_path, env=x11_env(x_server))
     assert second["error"] == "", second["error"]
@@ -366,8 +365,8 @@ def test(ctx):
     ctx.item_click("stylization path")
     ctx.item_input_value("##model", {str(model)!r})
     ctx.item_click("Open model")        # refused while the run goes on: one line, the run keeps its model
-    found["while_running"] = app.error
-    app.error = ""
+    found["while_running"] = app.ui.messages.error
+    app.ui.messages.error = ""
     open_window(ctx, "Training")
     ctx.item_click("Resume")
     wait(ctx, lambda: app.session.status().state == "finished", 180, "the reconstruction to finish")
@@ -380,7 +379,7 @@ def test(ctx):
     record("later", ctx)
 
 run(app, test)
-found["error"] = app.error
+found["error"] = app.ui.messages.error
 Path(os.environ["RESULT"]).write_text(json.dumps(found))
 """, tmp_path, env=x11_env(x_server))
     assert found["error"] == "", found["error"]

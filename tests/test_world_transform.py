@@ -10,10 +10,13 @@ import pytest
 import torch
 
 from app.camera_path import quat_to_matrix
-from app.viewer.app import Paths, ViewerApp, snapshot_of
-from app.viewer.selection import Editor, project
+from app.viewer.app import ViewerApp
+from app.viewer.files import open_model, open_project, save_project
+from app.viewer.scene_models import snapshot_of
+from app.viewer.selection import Editor
+from app.viewer.state import Paths
 from app.world_transform import (VIEWER_UP, cameras_up, level, plane_normal, rotation_between, scale_about,
-                                 transform_camera, transform_snapshot, unproject)
+                                 transform_camera, transform_snapshot)
 from training.model.gaussians import Gaussians
 from training.model.ply_io import read_ply, write_ply
 from training.model.transform import transform_gaussians
@@ -57,8 +60,8 @@ def test_a_moved_camera_sees_the_moved_scene_in_the_same_pixels():
     cam = camera([0.5, -1.0, -6.0], [0.0, 0.0, 0.0])
     m = similarity()
     moved = transform_camera(cam, m)
-    uv, front = project(points, cam)
-    uv2, front2 = project(points @ m[:3, :3].T + m[:3, 3], moved)
+    uv, front = cam.project(points)
+    uv2, front2 = moved.project(points @ m[:3, :3].T + m[:3, 3])
     assert front.all() and front2.all() and np.allclose(uv, uv2, atol=1e-9)
     assert np.allclose(moved.center, m[:3, :3] @ cam.center + m[:3, 3])
 
@@ -66,9 +69,9 @@ def test_a_moved_camera_sees_the_moved_scene_in_the_same_pixels():
 def test_unproject_inverts_projection():
     cam = camera([1.0, -2.0, -5.0], [0.0, 0.3, 0.0])
     p = np.array([0.2, -0.1, 0.4])
-    (u, v), = project(p[None], cam)[0]
+    (u, v), = cam.project(p[None])[0]
     z = (cam.world_to_camera[:3, :3] @ p + cam.world_to_camera[:3, 3])[2]
-    assert np.allclose(unproject(cam, u, v, z), p, atol=1e-12)
+    assert np.allclose(cam.unproject(u, v, z), p, atol=1e-12)
 
 
 def test_level_turns_the_up_direction_onto_the_viewers_up_and_planes_have_normals():
@@ -97,40 +100,43 @@ def test_the_cameras_mean_up_is_their_minus_y():
 def test_rescale_moves_model_and_cameras_by_the_ratio_and_undo_restores_them_bit_for_bit(tmp_path):
     write_ply(tmp_path / "m.ply", model(n=60, degree=1))
     app = ViewerApp(Paths(out=str(tmp_path / "out")))
-    app.open_model(str(tmp_path / "m.ply"))
+    doc, session, ui = app.document, app.session, app.ui
+    open_model(doc, session, ui, str(tmp_path / "m.ply"))
     cams = [camera([4.0, -1.0, -4.0], [0.0, 0.0, 0.0]), camera([-4.0, -1.0, -3.0], [0.0, 0.0, 0.0])]
-    app.scene.cameras = cams
-    from app.viewer.world_edit import add_point, level_from_cameras, rescale_to, sync_world, world_of
+    from app.viewer.document import Dataset
 
-    sync_world(app)
-    before = app.editor.model
-    app.world.tool = "measure"
-    add_point(app, before.means[0].astype(np.float64))
-    add_point(app, before.means[1].astype(np.float64))
+    doc.dataset = Dataset("", cams)  # a dataset's cameras, as loaded
+    from app.viewer.world_edit import add_point, follow_world, level_from_cameras, rescale_to
+
+    follow_world(doc, session, ui)
+    before = doc.editor.model
+    ui.world.tool = "measure"
+    add_point(ui.world, before.means[0].astype(np.float64))
+    add_point(ui.world, before.means[1].astype(np.float64))
     d = float(np.linalg.norm(before.means[1].astype(np.float64) - before.means[0]))
-    factor = rescale_to(app, 3.0)
+    factor = rescale_to(doc, session, ui, 3.0)
     assert factor == pytest.approx(3.0 / d, rel=1e-12)
-    assert np.allclose(app.editor.model.means, before.means * factor, rtol=1e-6, atol=1e-6)
-    assert np.allclose(app.editor.model.scales, before.scales * factor, rtol=1e-6)
-    for a, b in zip(app.scene.cameras, cams):
+    assert np.allclose(doc.editor.model.means, before.means * factor, rtol=1e-6, atol=1e-6)
+    assert np.allclose(doc.editor.model.scales, before.scales * factor, rtol=1e-6)
+    for a, b in zip(doc.cameras, cams):
         assert np.allclose(a.center, b.center * factor, rtol=1e-12)
-    assert np.isclose(np.linalg.norm(app.world.points[1] - app.world.points[0]), 3.0)
-    from app.viewer.world_edit import in_file_frame, scene_up
+    assert np.isclose(np.linalg.norm(ui.world.points[1] - ui.world.points[0]), 3.0)
+    from app.viewer.world_edit import scene_up
 
-    assert scene_up(app) is None  # scaled, not turned: the cameras still say where up is
-    assert np.allclose(in_file_frame(app, app.editor.model).means, before.means, atol=1e-6)  # what a run starts from
-    level_from_cameras(app)
-    assert np.allclose(cameras_up(app.scene.cameras), VIEWER_UP, atol=1e-9)
-    assert np.array_equal(scene_up(app), VIEWER_UP)
-    assert len(app.editor.undo_stack) == 2
-    app.editor.undo()
-    app.editor.undo()
-    sync_world(app)
-    assert app.editor.model is before and np.array_equal(world_of(app), np.eye(4))
-    assert all(a is b for a, b in zip(app.scene.cameras, cams))
-    app.editor.redo()
-    sync_world(app)
-    assert np.allclose(app.scene.cameras[0].center, cams[0].center * factor, rtol=1e-12)
+    assert scene_up(doc, session) is None  # scaled, not turned: the cameras still say where up is
+    assert np.allclose(doc.in_file_frame(doc.editor.model).means, before.means, atol=1e-6)  # what a run starts from
+    level_from_cameras(doc, session, ui)
+    assert np.allclose(cameras_up(doc.cameras), VIEWER_UP, atol=1e-9)
+    assert np.array_equal(scene_up(doc, session), VIEWER_UP)
+    assert len(doc.editor.undo_stack) == 2
+    doc.undo()
+    doc.undo()
+    follow_world(doc, session, ui)
+    assert doc.editor.model is before and np.array_equal(doc.world, np.eye(4))
+    assert all(a is b for a, b in zip(doc.cameras, cams))
+    doc.redo()
+    follow_world(doc, session, ui)
+    assert np.allclose(doc.cameras[0].center, cams[0].center * factor, rtol=1e-12)
 
 
 def test_a_change_keeps_its_gaussians_and_refuses_others():
@@ -143,25 +149,23 @@ def test_a_change_keeps_its_gaussians_and_refuses_others():
 
 def test_export_of_a_rescaled_levelled_project_is_the_file_moved_by_the_world(tmp_path):
     from app.commands.export import baked_project
-    from app.project import save_project
-    from app.viewer.project_io import apply_project, project_from_app
-    from app.viewer.world_edit import set_world, world_of
+    from app.viewer.world_edit import set_world
 
     g = model(n=40, degree=2)
     write_ply(tmp_path / "m.ply", g)
     app = ViewerApp(Paths(out=str(tmp_path / "out")))
-    app.open_model(str(tmp_path / "m.ply"))
+    open_model(app.document, app.session, app.ui, str(tmp_path / "m.ply"))
     world = level([0.2, 0.1, 1.0], [0.0, 0.0, 0.0]) @ scale_about(0.25, [0.0, 0.0, 0.0])
-    set_world(app, world)
-    path = save_project(tmp_path / "s.splatproj", project_from_app(app))
+    set_world(app.document, app.session, app.ui, world)
+    path = save_project(app.document, app.session, app.ui, str(tmp_path / "s.splatproj"), layout="")
     expected = transform_gaussians(read_ply(tmp_path / "m.ply"), world)
     baked = baked_project(path, drop_hidden=False)
     for name, value in expected.parameters().items():
         assert torch.allclose(baked.parameters()[name], value, atol=1e-6), name
     again = ViewerApp(Paths(out=str(tmp_path / "out2")))
-    apply_project(again, path)
-    assert np.array_equal(world_of(again), world)
-    assert np.allclose(again.editor.model.means, app.editor.model.means, atol=1e-6)
+    open_project(again.document, again.session, again.ui, str(path))
+    assert np.array_equal(again.document.world, world)
+    assert np.allclose(again.document.editor.model.means, app.document.editor.model.means, atol=1e-6)
 
 
 def floor_scene(tmp_path):
@@ -178,10 +182,10 @@ def floor_scene(tmp_path):
     g.means = torch.from_numpy(np.concatenate([floor, box])).float()
     write_ply(tmp_path / "floor.ply", g)
     app = ViewerApp(Paths(out=str(tmp_path / "out")))
-    app.open_model(str(tmp_path / "floor.ply"))
-    from app.viewer.world_edit import sync_world
+    open_model(app.document, app.session, app.ui, str(tmp_path / "floor.ply"))
+    from app.viewer.world_edit import follow_world
 
-    sync_world(app)  # what each frame does first
+    follow_world(app.document, app.session, app.ui)  # what each frame does first
     return app, floor
 
 
@@ -189,26 +193,28 @@ def test_fit_the_floor_levels_the_plane_of_the_gaussians_around_the_point(tmp_pa
     from app.viewer.world_edit import add_point, level_from_fit
 
     app, floor = floor_scene(tmp_path)
-    app.world.tool, app.world.fit_radius = "fit", 1.0
-    add_point(app, floor[0])
-    level_from_fit(app)
-    means = app.editor.model.means.astype(np.float64)
+    doc, session, ui = app.document, app.session, app.ui
+    ui.world.tool, ui.world.fit_radius = "fit", 1.0
+    add_point(ui.world, floor[0])
+    level_from_fit(doc, session, ui)
+    means = doc.editor.model.means.astype(np.float64)
     assert np.ptp(means[:300, 1]) < 1e-5  # the floor is level: one height
     assert means[300:, 1].max() < means[:300, 1].min()  # the box stands above it (up is -y)
-    app.world.fit_radius = 1e-6
+    ui.world.fit_radius = 1e-6
     with pytest.raises(ValueError, match="Gaussians within"):
-        level_from_fit(app)
+        level_from_fit(doc, session, ui)
 
 
 def test_pick_the_floor_levels_the_plane_through_three_points(tmp_path):
     from app.viewer.world_edit import add_point, level_from_floor
 
     app, floor = floor_scene(tmp_path)
-    app.world.tool = "floor"
+    ui = app.ui
+    ui.world.tool = "floor"
     for i in (0, 1, 2):
-        add_point(app, floor[i])
-    level_from_floor(app)
-    means = app.editor.model.means.astype(np.float64)
+        add_point(ui.world, floor[i])
+    level_from_floor(app.document, app.session, ui)
+    means = app.document.editor.model.means.astype(np.float64)
     assert np.ptp(means[:300, 1]) < 1e-5 and means[300:, 1].max() < means[:300, 1].min()
-    add_point(app, floor[3])  # a fourth click starts the next floor
-    assert len(app.world.points) == 1
+    add_point(ui.world, floor[3])  # a fourth click starts the next floor
+    assert len(ui.world.points) == 1

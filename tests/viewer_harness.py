@@ -120,7 +120,8 @@ import json, os, time
 import numpy as np
 from pathlib import Path
 from imgui_bundle.immapp import testing
-from app.viewer.app import Paths, ViewerApp
+from app.viewer.app import ViewerApp
+from app.viewer.state import Paths
 from app.viewer.platform import choose_platform, prepare_glfw
 
 OUT = Path(os.environ["OUT"])

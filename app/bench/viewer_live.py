@@ -145,7 +145,8 @@ def _headless(spec: dict) -> dict:
 
 
 def _app(spec: dict):
-    from app.viewer.app import Paths, ViewerApp
+    from app.viewer.app import ViewerApp
+    from app.viewer.state import Paths
 
     data, downscale = _data(spec)
     out = str(Path(spec["work"]) / f"viewer_{spec['stage']}_{spec['phase']}")
@@ -153,16 +154,16 @@ def _app(spec: dict):
         return ViewerApp(Paths(data=data, out=out), start="reconstruct", preset=spec["preset"],
                          recon_iters=RECON_ITERS, downscale=downscale)
     app = ViewerApp(Paths(data=data, model=spec["model"], style=spec["style"], out=out), start="stylize")
-    app.training.stylize = _stylize_config(spec.get("stylize_preset"))
+    app.ui.training.stylize = _stylize_config(spec.get("stylize_preset"))
     return app
 
 
 def _display(app) -> dict:
     """The display path the view chose, and why it draws without CUDA-GL interop where it does."""
-    choice = getattr(app.view, "display", None)
+    choice = getattr(app.ui.view, "display", None)
     if choice is None:
         return {"display_path": None}
-    return {"display_path": choice.label(), "display_note": choice.interop_note(app.view.cuda)}
+    return {"display_path": choice.label(), "display_note": choice.interop_note(app.ui.view.cuda)}
 
 
 def _trainer_device(app) -> dict:
@@ -206,7 +207,7 @@ def _window(spec: dict) -> dict:
     immapp.run(app.runner_params(size=WINDOW), immapp.AddOnsParams(with_implot=True))
     if state["result"] is None:
         raise RuntimeError(f"the window closed before the {spec['stage']} stage ran {warmup} steps: "
-                           f"{app.error or 'no error shown'}")
+                           f"{app.ui.messages.error or 'no error shown'}")
     return state["result"]
 
 
@@ -220,7 +221,7 @@ def _latency(spec: dict) -> dict:
 
     seconds, warmup, n = spec["seconds"], spec["warmup"], int(spec["splats"])
     app = _app(spec)
-    app.training.refresh_s = 1e9  # the view keeps the synthetic model; the trainer runs beside it
+    app.ui.training.refresh_s = 1e9  # the view keeps the synthetic model; the trainer runs beside it
     rng = np.random.default_rng(0)
     ro = lambda a: (a.setflags(write=False), a)[1]  # noqa: E731
     quats = rng.normal(size=(n, 4)).astype(np.float32)

@@ -11,16 +11,15 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
+from app.region_flags import add_region_flags, region_from_args
+
 
 def register(sub: argparse._SubParsersAction) -> None:
     parser = sub.add_parser("crop", help="keep the Gaussians inside (or outside) a box or sphere",
                             description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("model", type=Path, metavar="MODEL",
                         help="model file: .ply, .compressed.ply, .splat, .spz or .glb")
-    shape = parser.add_mutually_exclusive_group(required=True)
-    shape.add_argument("--box", default=None, metavar="X0,Y0,Z0,X1,Y1,Z1", help="two opposite corners, world space")
-    shape.add_argument("--sphere", default=None, metavar="CX,CY,CZ,R", help="centre and radius, world space")
-    parser.add_argument("--invert", action="store_true", help="keep the Gaussians outside instead")
+    add_region_flags(parser, "keep", with_mask=False, required=True)
     parser.add_argument("-o", "--output", type=Path, required=True, metavar="OUT",
                         help="output file: .ply, .compressed.ply, .splat, .spz or .glb (written atomically)")
     parser.set_defaults(func=run)
@@ -30,28 +29,18 @@ def run(args: argparse.Namespace) -> int:
     from training.core.errors import InputError
     from training.model.export import SUFFIX_LIST, format_for_path, human_size, write_export
     from training.model.model_io import read_model
-    from training.model.selection import box_mask, parse_floats, sphere_mask
 
     fmt = format_for_path(args.output)
     if fmt is None or args.output.is_dir():
         raise InputError(args.output, f"give an output file name ending in {SUFFIX_LIST}")
-    if args.box is not None:
-        values = parse_floats(args.box, 6, "--box")  # checked before the model is read: a typo costs nothing
-    else:
-        values = parse_floats(args.sphere, 4, "--sphere")
-        if values[3] < 0:
-            raise InputError(None, f"--sphere radius must be >= 0, got {values[3]}")
+    region = region_from_args(args)  # checked before the model is read: a typo costs nothing
     g = read_model(args.model)
-    means = g.means.numpy()
-    if args.box is not None:
-        keep = box_mask(means, values[:3], values[3:], invert=args.invert)
-    else:
-        keep = sphere_mask(means, values[:3], values[3], invert=args.invert)
+    keep = region.mask(g.means.numpy())
     kept = int(keep.sum())
     if kept == 0:
         where = "outside" if args.invert else "inside"
-        raise InputError(args.model, f"none of its {len(g)} Gaussians lies {where} the "
-                                     f"{'box' if args.box is not None else 'sphere'}: nothing to write")
+        raise InputError(args.model, f"none of its {len(g)} Gaussians lies {where} the {region.kind}: nothing to "
+                                     "write")
     result = write_export(args.output, g, fmt, mask=keep)
     print(f"wrote {args.output}: kept {kept} of {len(g)} Gaussians ({human_size(result.size)})")
     return 0

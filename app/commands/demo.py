@@ -101,7 +101,8 @@ def _recon_iters(args, generated_scene: bool) -> int | None:
 
 
 def _in_viewer(args, data: Path, style: Path, out: Path, generated_scene: bool) -> int:
-    from app.viewer.app import Paths, ViewerApp, run as run_viewer
+    from app.viewer.app import ViewerApp, run as run_viewer
+    from app.viewer.state import Paths
 
     overrides = {"loss": args.loss, "backend": args.backend}
     if args.iters_per_view:
@@ -116,14 +117,15 @@ def _in_viewer(args, data: Path, style: Path, out: Path, generated_scene: bool) 
     if stopped_by:
         return 128 + stopped_by
     # the run's own folder (stylized, or stylized_2... when an earlier demo's output is there)
-    recon = out / "reconstruction" / "point_cloud.ply"
-    styled = app.training.runs[-1] if app.training.runs else out / "stylized" / "point_cloud.ply"
-    if recon.is_file() and styled.is_file() and not app.error:
+    training, error = app.ui.training, app.ui.messages.error
+    recon = Path(training.base_model or out / "reconstruction" / "point_cloud.ply")  # this run's folder
+    styled = training.runs[-1] if training.runs else out / "stylized" / "point_cloud.ply"
+    if recon.is_file() and styled.is_file() and not error:
         from app.demo_sheet import demo_contact_sheet
 
         print(f"contact sheet (photo, reconstruction, stylized, painting): "
               f"{demo_contact_sheet(data, recon, styled, style, out / CONTACT_SHEET)}")
-    if app.error:
-        print(f"splatstyler: error: {app.error}")
+    if error:
+        print(f"splatstyler: error: {error}")
         return 1
     return 0

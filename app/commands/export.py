@@ -23,6 +23,9 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
+from app.region_flags import add_region_flags, region_from_args
+
+
 def register(sub: argparse._SubParsersAction) -> None:
     parser = sub.add_parser(
         "export",
@@ -50,40 +53,10 @@ def register(sub: argparse._SubParsersAction) -> None:
     parser.add_argument("--compact-sh", action="store_true",
                         help="PLY: write only the kept bands' f_rest instead of all 45 zero-padded (smaller; some "
                              "older viewers expect 45)")
-    sel = parser.add_mutually_exclusive_group()
-    sel.add_argument("--mask", type=Path, default=None, metavar="FILE",
-                     help="export only these Gaussians: .npy bool mask or indices, or .txt indices")
-    sel.add_argument("--box", default=None, metavar="X0,Y0,Z0,X1,Y1,Z1",
-                     help="export only the Gaussians whose centres lie in this box (--box=-1,... for a leading "
-                          "minus)")
-    sel.add_argument("--sphere", default=None, metavar="CX,CY,CZ,R",
-                     help="export only the Gaussians whose centres lie in this sphere")
-    parser.add_argument("--invert", action="store_true", help="with a selection: export the other Gaussians")
+    add_region_flags(parser, "export")
     parser.add_argument("--dry-run", action="store_true", help="print what would be written and its size; write "
                                                                "nothing")
     parser.set_defaults(func=run)
-
-
-def selection_mask(args: argparse.Namespace, means):
-    """(N,) bool from --mask/--box/--sphere and --invert, or None when none is given."""
-    from training.core.errors import InputError
-    from training.model.selection import box_mask, load_mask, parse_floats, sphere_mask
-
-    if args.mask is None and args.box is None and args.sphere is None:
-        if args.invert:
-            raise InputError(None, "--invert needs --mask, --box or --sphere")
-        return None
-    if args.mask is not None:
-        mask = load_mask(args.mask, len(means))
-    elif args.box is not None:
-        b = parse_floats(args.box, 6, "--box")
-        mask = box_mask(means, b[:3], b[3:])
-    else:
-        c = parse_floats(args.sphere, 4, "--sphere")
-        if c[3] < 0:
-            raise InputError(None, f"--sphere radius must be >= 0, got {c[3]}")
-        mask = sphere_mask(means, c[:3], c[3])
-    return ~mask if args.invert else mask
 
 
 def baked_project(path: Path, drop_hidden: bool):
@@ -123,6 +96,7 @@ def run(args: argparse.Namespace) -> int:
     if args.without_hidden and args.project is None:
         raise InputError(None, "--without-hidden applies to --project")
     source = args.input if args.project is None else args.project
+    region = region_from_args(args)  # checked before the model is read
     g = read_model(args.input) if args.project is None else baked_project(args.project, args.without_hidden)
     if args.sh_degree is not None:
         if fmt == "splat" and args.sh_degree > 0:
@@ -131,7 +105,7 @@ def run(args: argparse.Namespace) -> int:
             raise InputError(source, f"holds SH degree {g.sh_degree}; --sh-bands {args.sh_degree} cannot "
                                          "add degrees")
     bands = min(g.sh_degree, max_sh_bands(fmt)) if args.sh_degree is None else args.sh_degree
-    mask = selection_mask(args, g.means.numpy())
+    mask = None if region is None else region.mask(g.means.numpy())
     count = len(g) if mask is None else int(mask.sum())
     if count == 0:
         raise InputError(None, f"the selection holds none of the model's {len(g)} Gaussians: nothing to export")

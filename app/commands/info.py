@@ -16,6 +16,8 @@ import argparse
 import json
 from pathlib import Path
 
+from app.render_inputs import detect_kind
+
 
 def register(sub: argparse._SubParsersAction) -> None:
     parser = sub.add_parser(
@@ -30,19 +32,6 @@ def register(sub: argparse._SubParsersAction) -> None:
     parser.add_argument("--downscale", type=int, default=1, metavar="N",
                         help="scenes: report image sizes and intrinsics as loaded with --downscale N (default 1)")
     parser.set_defaults(func=run)
-
-
-def detect_kind(path: Path) -> str:
-    """A model file's format by read_model's rule (training/model/model_io.py), "scene" for anything else; a file
-    named like a model that is none gets read_model's error."""
-    from training.model.model_io import checked_format, has_model_suffix, model_format
-
-    fmt = model_format(path)
-    if fmt is not None:
-        return fmt
-    if path.is_file() and has_model_suffix(path):
-        checked_format(path)  # raises the precise "not an SPZ file" error
-    return "scene"
 
 
 def run(args: argparse.Namespace) -> int:

@@ -39,18 +39,6 @@ def register(sub: argparse._SubParsersAction) -> None:
     parser.set_defaults(func=run)
 
 
-def sfm_fingerprint(args: argparse.Namespace) -> dict:
-    """The fingerprint (photos and settings) a run with these arguments records in DATA/sfm_report.json."""
-    from pathlib import Path
-
-    from training.scene.fingerprint import make_fingerprint, photos_fingerprint
-    from training.scene.sfm import list_photos, sfm_settings
-
-    return make_fingerprint(photos=photos_fingerprint(list_photos(Path(args.photos))),
-                            settings=sfm_settings(args.max_size, args.max_features, args.matcher,
-                                                  args.camera_model, args.refine_principal_point))
-
-
 def run(args: argparse.Namespace) -> int:
     import sys
 

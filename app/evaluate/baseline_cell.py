@@ -17,7 +17,7 @@ def run_baseline_cell(model: Path, data: Path, painting: Path, out: Path, flags:
     from app.evaluate.remeasure import prepared_stylizer
     from training.core.atomic_write import atomic_open, make_output_dir
     from training.evaluate.baseline_2d import stylize_images_independently
-    from training.evaluate.measure import METRICS_VERSION, _render_all, measure_images, measure_order
+    from training.evaluate.measure import METRICS_VERSION, measure_images, measure_order, render_all
     from training.scene.image_io import write_image
 
     t0 = time.perf_counter()
@@ -26,9 +26,9 @@ def run_baseline_cell(model: Path, data: Path, painting: Path, out: Path, flags:
     style = stylizer.style_image
     cfg = stylizer.config
     g = stylizer.gaussians.detached()
-    renders = _render_all(g, g.sh, stylizer.cameras, cfg.background, cfg.backend, stylizer.device, mode="RGB+ED")
+    renders = render_all(g, g.sh, stylizer.cameras, cfg.background, cfg.backend, stylizer.device, mode="RGB+ED")
     start = [img[..., :3] for img, _ in renders]
-    original = [img for img, _ in _render_all(g, stylizer.original_sh.detach(), stylizer.cameras, cfg.background,
+    original = [img for img, _ in render_all(g, stylizer.original_sh.detach(), stylizer.cameras, cfg.background,
                                                cfg.backend, stylizer.device, mode="RGB")]
     stylized = stylize_images_independently(start, style, loss=cfg.loss, vgg=stylizer.vgg,
                                             color_transfer=False)  # the renders already had the stylizer's one

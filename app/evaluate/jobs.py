@@ -107,11 +107,18 @@ def _limit_threads(threads: int) -> None:
         pass
 
 
+def fingerprint_of(args) -> dict:
+    """The SfM fingerprint a `splatstyler sfm` command line (parsed) records."""
+    from training.scene.sfm import sfm_fingerprint
+
+    return sfm_fingerprint(args.photos, args.max_size, args.max_features, args.matcher, args.camera_model,
+                           args.refine_principal_point)
+
+
 def _sfm(job: Job, out: Path, log_path: Path) -> dict[str, Any]:
     import shutil
 
     from app.cli import build_parser
-    from app.commands.sfm import sfm_fingerprint
     from training.scene.fingerprint import difference
     from training.scene.sfm import REPORT_NAME, sfm_complete
 
@@ -121,7 +128,7 @@ def _sfm(job: Job, out: Path, log_path: Path) -> dict[str, Any]:
     if sfm_complete(folder):
         recorded = json.loads(report.read_text()).get("fingerprint")
         changed = "made before SfM recorded its inputs" if not recorded else \
-            difference(recorded, sfm_fingerprint(build_parser().parse_args(argv)))
+            difference(recorded, fingerprint_of(build_parser().parse_args(argv)))
         if changed is None:
             return {"sfm": _plain_values(json.loads(report.read_text()))}
         print(f"the scene in {folder} was made from other photos or settings ({changed}): running SfM again",

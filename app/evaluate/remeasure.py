@@ -10,7 +10,7 @@ def prepared_stylizer(model: Path, data: Path, painting: Path, flags: list[str])
     """(Stylizer, parsed stylize args): the stylizer a `splatstyler stylize MODEL --data DATA --style PAINTING
     FLAGS` run starts from (cameras at the stylization size, trajectory order, pre colour transfer), not stepped."""
     from app.cli import build_parser
-    from app.commands.stylize import config_from_args
+    from app.stylize_settings import config_from_args
     from training.model.model_io import read_model
     from training.scene.loader import load_scene
     from training.stylize.pipeline import choose_downscale

@@ -37,7 +37,7 @@ def cell_views(data: Path, painting: Path, flags: Sequence[str]) -> CellViews:
     """The cameras and short-range pairs of a cell run as `splatstyler stylize MODEL --data DATA --style PAINTING
     FLAGS` (the same preparation as the Stylizer's, without loading its network)."""
     from app.cli import build_parser
-    from app.commands.stylize import config_from_args
+    from app.stylize_settings import config_from_args
     from training.evaluate.consistency import pairs_at_gap
     from training.evaluate.measure import SHORT_GAP
     from training.raster.rasterize import resolve_device

@@ -9,24 +9,12 @@ tools use too).
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
-
 import numpy as np
 
+from app.viewer.gestures import view_camera
+from app.viewer.world_edit import pick
+
 PAIRS = 3
-
-
-@dataclass
-class AlignState:
-    active: bool = False  # left clicks on the view pick points
-    moving: list = field(default_factory=list)  # world points on the model to move
-    fixed: list = field(default_factory=list)  # where each of them belongs
-
-    def next_is_moving(self) -> bool:
-        return len(self.moving) == len(self.fixed)
-
-    def clear(self) -> None:
-        self.moving, self.fixed = [], []
 
 
 def similarity_from_pairs(src, dst) -> np.ndarray:
@@ -53,15 +41,11 @@ def similarity_from_pairs(src, dst) -> np.ndarray:
     return m
 
 
-def add_pick(app, x: float, y: float, fid: int) -> str:
+def add_pick(doc, session, ui, x: float, y: float, fid: int) -> str:
     """A click while aligning: the next point of the pair (moving, then fixed); the third pair moves model ``fid``.
     Returns the line for the user."""
-    from app.viewer.edit_panel import view_camera
-    from app.viewer.scene_models import rows_of_file, transform_rows
-    from app.viewer.world_edit import pick
-
-    st = app.gizmo.align
-    point = pick(app, view_camera(app), x, y)
+    st = ui.gizmo.align
+    point = pick(ui, view_camera(ui), x, y)
     if point is None:
         return ""  # pick said why
     (st.moving if st.next_is_moving() else st.fixed).append(point)
@@ -71,6 +55,6 @@ def add_pick(app, x: float, y: float, fid: int) -> str:
     matrix = similarity_from_pairs(st.moving, st.fixed)
     st.clear()
     st.active = False
-    transform_rows(app, rows_of_file(app, fid), matrix)
+    doc.transform(doc.rows_of_file(fid), matrix)
     s = float(np.linalg.det(matrix[:3, :3])) ** (1 / 3)
-    return f"aligned model {app.scene_models.files[fid].name} by three point pairs (scale {s:.4g})"
+    return f"aligned model {doc.models.files[fid].name} by three point pairs (scale {s:.4g})"

@@ -64,7 +64,7 @@ class ViewerCamera:
 
     @classmethod
     def from_camera(cls, camera: Camera, up: np.ndarray | None = None, target_distance: float = 1.0) -> "ViewerCamera":
-        c2w = camera.camera_to_world
+        c2w = np.linalg.inv(np.asarray(camera.world_to_camera, np.float64))
         fov = math.degrees(2 * math.atan(camera.height / (2 * camera.fy)))
         return cls(_orthonormal(c2w[:3, :3]), c2w[:3, 3].copy(), target_distance, fov, up)
 
@@ -170,3 +170,16 @@ def nearest_camera(view: ViewerCamera, cameras: list[Camera]) -> int:
     dist = np.linalg.norm(centers - view.position, axis=1) / span
     angle = np.array([1.0 - float(np.dot(c.forward, view.forward)) for c in cameras])
     return int(np.argmin(dist + angle))
+
+
+def span(points) -> float:
+    """The largest extent of a set of points along an axis (1 for fewer than two)."""
+    pts = np.asarray(points, dtype=np.float64).reshape(-1, 3)
+    if len(pts) < 2:
+        return 1.0
+    return max(float(np.ptp(pts, axis=0).max()), 1e-6)
+
+
+def camera_span(cameras) -> float:
+    """The dataset cameras' span: the scale of flying, of the frustums drawn, of "near a camera"."""
+    return span([c.center for c in cameras]) if cameras else 1.0

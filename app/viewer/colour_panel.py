@@ -21,24 +21,24 @@ PARAMETERS = (("brightness", "%.3f"), ("contrast", "%.3f"), ("saturation", "%.3f
               ("temperature", "%.3f"))
 
 
-def colour_panel(app) -> None:
-    ed = app.editor
+def colour_panel(doc, session, ui) -> None:
+    ed = doc.editor
     if ed is None:
         imgui.text_colored(GREY, "open a model to adjust its colours")
         return
-    state = app.colour
+    state = ui.colour
     regions = list(REGION_LABELS)
     changed, i = imgui.combo("apply to", regions.index(state.region), list(REGION_LABELS.values()))
     if changed:
         state.region = regions[i]
     try:
-        region = cv.region_mask(app, state.region)
+        region = cv.region_mask(doc, state.region)
     except ValueError as exc:
         imgui.text_colored(GREY, str(exc))
         region, usable = None, False
     else:
         usable = True
-    edits = cv.edits_of(app)
+    edits = doc.colour
     imgui.separator_text("Colour")
     imgui.begin_disabled(not usable)
     adjustment = cv.current_adjustment(edits, region)
@@ -50,46 +50,51 @@ def colour_panel(app) -> None:
             state.drag += 1
         if changed and usable:
             new = replace(adjustment, **{name: float(value)})
-            app.guarded("colour", cv.set_edits, app, cv.with_adjustment(edits, region, new), ("colour", name,
-                                                                                             state.drag))
-            edits, adjustment = cv.edits_of(app), new
+            ui.messages.guarded("colour", doc.set_colour, cv.with_adjustment(edits, region, new),
+                                ("colour", name, state.drag))
+            edits, adjustment = doc.colour, new
     if imgui.button("Reset these sliders"):
-        app.guarded("colour", cv.set_edits, app, cv.with_adjustment(edits, region, type(adjustment)()))
+        ui.messages.guarded("colour", doc.set_colour, cv.with_adjustment(edits, region, type(adjustment)()))
     imgui.end_disabled()
     imgui.same_line()
     imgui.begin_disabled(not edits.adjustments)
     if imgui.button("Remove all colour edits"):
-        app.guarded("colour", cv.set_edits, app, replace(edits, adjustments=[],
-                                                         strength_regions=list(edits.strength_regions)))
+        ui.messages.guarded("colour", doc.set_colour, replace(edits, adjustments=[],
+                                                              strength_regions=list(edits.strength_regions)))
     imgui.end_disabled()
     layers = sum(not a.is_identity for _, a in edits.adjustments)
     imgui.text_colored(GREY, f"{layers} adjustment layer{'s' if layers != 1 else ''}")
-    strength_section(app, region, usable)
+    strength_section(doc, session, ui, region, usable)
 
 
-def strength_section(app, region, usable: bool) -> None:
-    state = app.colour
+def strength_section(doc, session, ui, region, usable: bool) -> None:
+    state = ui.colour
     imgui.separator_text("Style strength")
-    problem = cv.strength_problem(app)
-    edits = cv.edits_of(app)
+    problem = cv.strength_problem(doc, session)
+    edits = doc.colour
     imgui.begin_disabled(problem is not None or not usable)
     changed, value = imgui.slider_float("style strength", cv.current_strength(edits, region), 0.0, 1.0, "%.3f",
                                         imgui.SliderFlags_.always_clamp)
     if imgui.is_item_activated():
         state.drag += 1
     if changed and problem is None and usable:
-        app.guarded("style strength", cv.set_edits, app, cv.with_strength(edits, region, float(value)),
-                    ("strength", state.drag))
+        ui.messages.guarded("style strength", doc.set_colour, cv.with_strength(edits, region, float(value)),
+                            ("strength", state.drag))
     imgui.end_disabled()
     imgui.set_item_tooltip("0: the photo model's colours, 1: the stylized ones (each Gaussian's SH blended)")
     if problem is not None:
         imgui.push_text_wrap_pos(0.0)
         imgui.text_colored(GREY, problem)
         imgui.pop_text_wrap_pos()
-    if cv.stylizer(app) is None and app.source_gaussians is not None:
+    if cv.stylizer(session) is None and doc.source is not None:
         if not state.original_input:
-            state.original_input = state.original_path or state.stylized_from
+            state.original_input = str(doc.original.ref.path) if doc.original is not None else doc.stylized_from
         _, state.original_input = imgui.input_text("original model", state.original_input)
         imgui.set_item_tooltip("the model the opened one was stylized from (same Gaussians, row for row)")
         if imgui.button("Pair original"):
-            app.guarded("pair original", cv.pair_original, app, state.original_input)
+            ui.messages.guarded("pair original", pair_original, doc, ui, state.original_input)
+
+
+def pair_original(doc, ui, path: str) -> None:
+    doc.pair_original(path)
+    ui.messages.say(f"paired {path} as the original of {doc.models.files[0].path} ({len(doc.original.sh):,} rows)")

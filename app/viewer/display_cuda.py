@@ -100,11 +100,11 @@ class CudaDisplay:
         if transfer not in TRANSFERS:
             raise ValueError(f"transfer must be {' or '.join(TRANSFERS)}, got {transfer!r}")
         if backend == "cuda":
-            from training.raster.rasterize import _have_gsplat
+            from training.raster.rasterize import have_gsplat
 
             if not torch.cuda.is_available():
                 raise RuntimeError("the CUDA display path needs a CUDA device; torch sees none")
-            if not _have_gsplat():
+            if not have_gsplat():
                 raise RuntimeError("the CUDA display path needs gsplat (pip install -e \".[cuda]\")")
         self.ctx = ctx
         self.backend = backend

@@ -119,11 +119,11 @@ def unavailable(path: str, ctx) -> str | None:
     if path == "cuda":
         import torch
 
-        from training.raster.rasterize import _have_gsplat
+        from training.raster.rasterize import have_gsplat
 
         if not torch.cuda.is_available():
             return "torch sees no CUDA device"
-        if not _have_gsplat():
+        if not have_gsplat():
             return "gsplat does not import"
     return None
 

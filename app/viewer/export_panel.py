@@ -9,6 +9,8 @@ from pathlib import Path
 
 from imgui_bundle import imgui
 
+from app.viewer.colour_view import export_baker
+from app.viewer.runs import submit_to_trainer
 from training.model.export import FORMATS, SUFFIXES as SUFFIX
 
 GREY = imgui.ImVec4(0.6, 0.6, 0.6, 1.0)
@@ -18,29 +20,30 @@ def trainer_model(trainer):
     return trainer.stylized_gaussians() if hasattr(trainer, "stylized_gaussians") else trainer.export_gaussians()
 
 
-def model_to_export(app):
+def model_to_export(doc, session):
     """The model on screen: the running trainer's, else the opened one after its edits."""
-    trainer = app.session.trainer
+    trainer = session.trainer
     if trainer is not None:
         return trainer_model(trainer)
-    if app.editor is not None:
-        from app.viewer.world_edit import with_world
-
-        return with_world(app, app.edited_gaussians())  # scaled and levelled as shown (measure tools)
+    if doc.editor is not None:
+        return doc.in_world(doc.edited_gaussians())  # scaled and levelled as shown (measure tools)
     raise ValueError("no model to export: open one or run a reconstruction")
 
 
-def selection_mask(app, count: int):
+def selection_mask(doc, count: int):
     """The editor's selection when it applies to the model being exported (same Gaussians), else None."""
-    if app.editor is None or len(app.editor.selected) != count:
+    if doc.editor is None or len(doc.editor.selected) != count:
         return None
-    return app.editor.selected
+    return doc.editor.selected
 
 
-def export_section(app) -> None:
+def export_section(doc, session, ui) -> None:
     from training.model.export import export_size, human_size, max_sh_bands
 
-    st = app.export
+    if doc.editor is None:
+        return
+    imgui.separator_text("Export")
+    st = ui.export
     changed, i = imgui.combo("format", FORMATS.index(st.format), list(FORMATS))
     if changed:
         st.format = FORMATS[i]
@@ -55,7 +58,7 @@ def export_section(app) -> None:
         _, v = imgui.combo("SPZ version", 0 if st.spz_version == 4 else 1, ["4 (current)", "3 (older readers)"])
         st.spz_version = 4 if v == 0 else 3
     _, st.path = imgui.input_text("file", st.path)
-    count = _count(app, st.selection_only)
+    count = _count(doc, session, st.selection_only)
     if count is not None:
         bands = 0 if top == 0 else min(st.sh_bands, top)
         size = export_size(st.format, bands, count, pad_sh=not st.compact_sh)
@@ -63,29 +66,29 @@ def export_section(app) -> None:
     else:
         imgui.text_colored(GREY, "nothing to export")
     if imgui.button("Export"):
-        app.guarded("export", write, app)
+        ui.messages.guarded("export", write, doc, session, ui)
 
 
-def _count(app, selection_only: bool) -> int | None:
-    snap = app._current_model()
+def _count(doc, session, selection_only: bool) -> int | None:
+    trainer = session.trainer
+    snap = trainer.snapshot() if trainer is not None else doc.model
     if snap is None:
         return None
     n = len(snap)
     if selection_only:
-        mask = selection_mask(app, n)
+        mask = selection_mask(doc, n)
         return None if mask is None else int(mask.sum())
     return n
 
 
-def write(app) -> None:
+def write(doc, session, ui) -> None:
     """Export the model on screen. A running trainer's model is copied and written on the training thread between
     two steps (a consistent model, never one half-way through a step or an edit); the line comes back later."""
-    from app.viewer.colour_view import export_baker
     from training.model.export import human_size, write_export
 
-    st = replace(app.export)  # the settings as they are now: the write may run later, on the training thread
-    bake = export_baker(app)  # the colour edits as shown now
-    selection = app.editor.selected.copy() if app.editor is not None else None
+    st = replace(ui.export)  # the settings as they are now: the write may run later, on the training thread
+    bake = export_baker(doc, session)  # the colour edits as shown now
+    selection = doc.editor.selected.copy() if doc.editor is not None else None
     path = Path(st.path)
     path.parent.mkdir(parents=True, exist_ok=True)
 
@@ -100,10 +103,10 @@ def write(app) -> None:
                             pad_sh=not st.compact_sh, spz_version=st.spz_version)
 
     def said(result) -> None:
-        app.say(f"wrote {result.path} ({result.count:,} Gaussians, {human_size(result.size)})")
-        app.export.written.append(result.path)
+        ui.messages.say(f"wrote {result.path} ({result.count:,} Gaussians, {human_size(result.size)})")
+        ui.export.written.append(result.path)
 
-    if app.session.running and app.session.trainer is not None:
-        app.submit_to_trainer("export", lambda trainer: export(bake(trainer_model(trainer), trainer)), said)
+    if session.running and session.trainer is not None:
+        submit_to_trainer(session, ui, "export", lambda trainer: export(bake(trainer_model(trainer), trainer)), said)
     else:
-        said(export(bake(model_to_export(app), app.session.trainer)))
+        said(export(bake(model_to_export(doc, session), session.trainer)))

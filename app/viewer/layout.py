@@ -1,5 +1,7 @@
 """The window's layout: Hello ImGui's docking with the 3D view as the central node (nothing floats over it), the
-panels docked left and right with tabs where they share a side, a status bar that is always visible, and a menu.
+panels docked left and right with tabs where they share a side, a status bar that is always visible, a menu, and
+the keys overlay. The one module that knows every panel: each is a function of (document, session, UI state) that
+imports no other panel.
 
 The layout is remembered per user (``$XDG_CONFIG_HOME/splatstyler/viewer.ini``, default ``~/.config``) and
 "View > Reset layout" puts it back. Fonts and panels follow the monitor's content scale (Hello ImGui's DPI
@@ -12,6 +14,17 @@ import os
 from pathlib import Path
 
 from imgui_bundle import hello_imgui, imgui
+
+from app.viewer import edit_panel, export_panel, gizmo_panel, select_tools_panel
+from app.viewer.colour_panel import colour_panel
+from app.viewer.files import open_from_dialog, save_project
+from app.viewer.measure_panel import measure_panel
+from app.viewer.path_panel import path_panel
+from app.viewer.scene_panel import scene_panel
+from app.viewer.style_panel import style_panel
+from app.viewer.training_panel import messages_panel, training_panel
+from app.viewer.view_order_panel import view_order_panel
+from app.viewer.view_panel import VIEW_WINDOW, view_window
 
 LEFT, LEFT_BOTTOM, RIGHT, RIGHT_BOTTOM = "LeftSpace", "LeftBottomSpace", "RightSpace", "RightBottomSpace"
 MAIN = "MainDockSpace"
@@ -28,33 +41,26 @@ def docking_splits() -> list:
             split(LEFT, LEFT_BOTTOM, imgui.Dir.down, 0.25), split(RIGHT, RIGHT_BOTTOM, imgui.Dir.down, 0.36)]
 
 
-def dockable_windows(app) -> list:
+def dockable_windows(doc, session, ui) -> list:
     """Every panel, by name (the GUI tests address them so), in the dock it starts in; the first of a dock is the
-    tab in front."""
-    from app.viewer.colour_panel import colour_panel
-    from app.viewer.edit_panel import edit_panel
-    from app.viewer.measure_panel import measure_panel
-    from app.viewer.path_panel import path_panel
-    from app.viewer.scene_panel import scene_panel
-    from app.viewer.style_panel import style_panel
-    from app.viewer.training_panel import messages_panel, training_panel
-    from app.viewer.view_order_panel import view_order_panel
-    from app.viewer.view_panel import VIEW_WINDOW, view_window
-
-    def window(label, dock, panel):
+    tab in front. A window lists its panel functions, drawn one below the other."""
+    def window(label, dock, *panels):
         def gui():
             # labels keep about 25 characters beside the widgets, however narrow the dock
             imgui.push_item_width(-imgui.get_font_size() * 12.5)
-            app.guarded(label, panel, app)
+            for panel in panels:
+                ui.messages.guarded(label, panel, doc, session, ui)
             imgui.pop_item_width()
 
         return hello_imgui.DockableWindow(label, dock, gui, True, False)
 
-    view = hello_imgui.DockableWindow(VIEW_WINDOW, MAIN, lambda: view_window(app), True, False)
+    view = hello_imgui.DockableWindow(VIEW_WINDOW, MAIN, lambda: view_window(doc, session, ui), True, False)
     view.call_begin_end = False
     view.include_in_view_menu = False
+    edit = (edit_panel.selection_section, select_tools_panel.more_selections, gizmo_panel.gizmo_section,
+            edit_panel.edits_section, export_panel.export_section)
     return [view,
-            window("Scene", LEFT, scene_panel), window("Edit", LEFT, edit_panel),
+            window("Scene", LEFT, scene_panel), window("Edit", LEFT, *edit),
             window("Colour", LEFT, colour_panel),
             window("Scale and up", LEFT, measure_panel),  # the measure and up tools
             window("Camera path", LEFT, path_panel), window("Messages", LEFT_BOTTOM, messages_panel),
@@ -62,7 +68,7 @@ def dockable_windows(app) -> list:
             window("View order", RIGHT_BOTTOM, view_order_panel)]
 
 
-def configure(rp, app) -> None:
+def configure(rp, doc, session, ui) -> None:
     """Docking, status bar, menus and the remembered layout on Hello ImGui's runner parameters."""
     wp = rp.imgui_window_params
     wp.default_imgui_window_type = hello_imgui.DefaultImGuiWindowType.provide_full_screen_dock_space
@@ -75,19 +81,18 @@ def configure(rp, app) -> None:
     wp.remember_status_bar_settings = False
     wp.config_windows_move_from_title_bar_only = True
     rp.docking_params.docking_splits = docking_splits()
-    rp.docking_params.dockable_windows = dockable_windows(app)
-    rp.callbacks.show_status = lambda: status_bar(app)
-    rp.callbacks.show_menus = lambda: menus(app)
+    rp.docking_params.dockable_windows = dockable_windows(doc, session, ui)
+    rp.callbacks.show_status = lambda: status_bar(session, ui)
+    rp.callbacks.show_menus = lambda: menus(doc, session, ui)
     ini = layout_file()
     ini.parent.mkdir(parents=True, exist_ok=True)
     rp.ini_folder_type = hello_imgui.IniFolderType.absolute_path
     rp.ini_filename = str(ini)
 
 
-def status_text(app) -> str:
+def status_text(session, ui) -> str:
     """The status bar's line: stage, state, iteration and total, it/s, time left, Gaussians, PSNR or loss, the
     view's frames per second, and how far the view is behind the trainer."""
-    session = app.session
     status = session.status()
     bits = []
     if session.trainer is not None or status.stage:
@@ -103,43 +108,43 @@ def status_text(app) -> str:
             bits.append(f"PSNR {m['psnr']:.2f}")
         elif "loss" in m:
             bits.append(f"loss {m['loss']:.4g}")
-        behind = status.step - app.training.shown_step if app.training.shown_step is not None else None
+        shown = ui.training.shown_step
+        behind = status.step - shown if shown is not None else None
         if behind and behind > 0 and status.state == "running":
             bits.append(f"view {behind} steps behind")
     else:
         bits.append("idle")
-    count = app.model_info.get("count")
+    count = ui.window.model_info.get("count")
     if count:
         bits.append(f"{count:,} Gaussians")
-    bits.append(f"{app.window.fps:.0f} fps")
+    bits.append(f"{ui.window.fps:.0f} fps")
     return "   |   ".join(bits)
 
 
-def status_bar(app) -> None:
-    imgui.text(status_text(app))
-    status = app.session.status()
+def status_bar(session, ui) -> None:
+    imgui.text(status_text(session, ui))
+    status = session.status()
     if status.total:
         imgui.same_line()
         imgui.progress_bar(status.step / status.total, imgui.ImVec2(160, 0))
-    if app.error:
+    if ui.messages.error:
         imgui.same_line()
-        imgui.text_colored(imgui.ImVec4(1.0, 0.4, 0.35, 1.0), app.error)
+        imgui.text_colored(imgui.ImVec4(1.0, 0.4, 0.35, 1.0), ui.messages.error)
 
 
-def menus(app) -> None:
+def menus(doc, session, ui) -> None:
+    guarded = ui.messages.guarded
     if imgui.begin_menu("File"):
-        for label, attr in (("Open model...", "model"), ("Open dataset...", "data"), ("Open painting...", "style")):
+        for label, what in (("Open model...", "model"), ("Open dataset...", "data"), ("Open painting...", "style")):
             if imgui.menu_item(label, "", False)[0]:
-                app.guarded("open", app.open_from_dialog, attr)
+                guarded("open", open_from_dialog, doc, session, ui, what)
         if imgui.menu_item("Add model to scene...", "", False)[0]:
-            from app.viewer.gizmo import add_from_dialog
-
-            app.guarded("add model", add_from_dialog, app)
+            guarded("add model", open_from_dialog, doc, session, ui, "add")
         imgui.separator()
         if imgui.menu_item("Open project...", "", False)[0]:
-            app.guarded("open project", app.open_from_dialog, "project")
+            guarded("open project", open_from_dialog, doc, session, ui, "project")
         if imgui.menu_item("Save project", "Ctrl+S", False)[0]:
-            app.guarded("save project", app.save_project)
+            guarded("save project", save_project, doc, session, ui)
         imgui.separator()
         if imgui.menu_item("Quit", "", False)[0]:
             hello_imgui.get_runner_params().app_shall_exit = True
@@ -147,5 +152,26 @@ def menus(app) -> None:
     if imgui.begin_menu("View"):
         if imgui.menu_item("Reset layout", "", False)[0]:
             hello_imgui.get_runner_params().docking_params.layout_reset = True
-        _, app.window.show_help = imgui.menu_item("Keys (H)", "", app.window.show_help)
+        _, ui.window.show_help = imgui.menu_item("Keys (H)", "", ui.window.show_help)
         imgui.end_menu()
+
+
+KEYS = [("left drag", "orbit"), ("right / middle drag", "pan"), ("wheel", "zoom"), ("W A S D", "fly"),
+        ("Q / E", "down / up"), ("Z / C", "roll"), ("N", "snap to the nearest dataset camera"), ("R", "reset view"),
+        ("space", "pause / resume training"), ("Ctrl+Z / Ctrl+Y", "undo / redo an edit"),
+        ("Delete", "delete the selection"), ("G / T / Y", "gizmo: move / turn / scale (again: off)"),
+        ("H or F1", "this help")]
+
+
+def help_overlay(ui) -> None:
+    """The keys, over the middle of the window (H or F1)."""
+    io = imgui.get_io()
+    imgui.set_next_window_pos(imgui.ImVec2(io.display_size.x / 2, io.display_size.y / 2), imgui.Cond_.always,
+                              imgui.ImVec2(0.5, 0.5))
+    imgui.set_next_window_bg_alpha(0.85)
+    flags = imgui.WindowFlags_.always_auto_resize | imgui.WindowFlags_.no_collapse
+    expanded, ui.window.show_help = imgui.begin("Keys", True, flags)
+    if expanded:
+        for key, what in KEYS:
+            imgui.text(f"{key:<22}{what}")
+    imgui.end()

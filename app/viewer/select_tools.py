@@ -19,7 +19,6 @@ from __future__ import annotations
 
 import numpy as np
 
-from app.viewer.selection import project
 from training.model.sh_constants import SH_C0
 
 
@@ -52,7 +51,7 @@ def camera_depths(means: np.ndarray, camera) -> np.ndarray:
 def on_surface(means: np.ndarray, camera, depth: np.ndarray, tolerance: float) -> np.ndarray:
     """(N,) bool: centres in front of ``camera`` whose depth is within ``tolerance`` (a fraction) of the depth
     image ``depth`` (H, W, top row first, 0 where nothing was drawn) at their pixel."""
-    uv, front = project(means, camera)
+    uv, front = camera.project(means)
     h, w = depth.shape
     px, py = np.floor(uv[:, 0]).astype(np.int64), np.floor(uv[:, 1]).astype(np.int64)
     inside = front & (px >= 0) & (px < w) & (py >= 0) & (py < h)
@@ -66,7 +65,7 @@ def on_surface(means: np.ndarray, camera, depth: np.ndarray, tolerance: float) -
 
 def surface_brush(means, camera, points, radius: float, depth: np.ndarray, tolerance: float) -> np.ndarray:
     """The brush's stroke (pixel points, ``radius`` in pixels), visible surface only."""
-    uv, front = project(means, camera)
+    uv, front = camera.project(means)
     under = np.zeros(len(means), bool)
     for x, y in points:
         under |= (uv[:, 0] - x) ** 2 + (uv[:, 1] - y) ** 2 <= radius ** 2
@@ -91,9 +90,9 @@ def weights_at(model, camera, x: float, y: float, visible: np.ndarray | None = N
     the renderer composites (EWA projection with its low-pass, ALPHA_MIN and ALPHA_MAX; training/raster)."""
     from training.raster.constants import ALPHA_MAX, ALPHA_MIN, EPS2D, NEAR_PLANE
 
-    from renderer_gl.camera import view
+    from renderer_gl.camera import jacobian_limits
 
-    lim_right, lim_left, lim_bottom, lim_top = view(camera).jacobian_limits()
+    lim_right, lim_left, lim_bottom, lim_top = jacobian_limits(camera)
     n = len(model.means)
     w2c = np.asarray(camera.world_to_camera, np.float64)
     alpha = np.zeros(n)

@@ -1,7 +1,7 @@
 """Selections and edits of the model the viewer holds, with undo and redo.
 
 A selection is a boolean mask over the Gaussians, made in screen space (rectangle, brush, lasso: the Gaussians
-whose centres project inside, in front of the camera) or in world space (box, sphere), and combined with the current
+whose centres the camera, a training/scene/camera.py Camera, projects inside, in front of it) or in world space (box, sphere), and combined with the current
 one by a mode: set, add, remove. Edits change what the model is: hide and show (kept, not drawn), delete, crop to a
 box (keep inside or outside). Every edit is a step on the undo stack; undo restores the model exactly.
 
@@ -28,34 +28,22 @@ def combine(current: np.ndarray, picked: np.ndarray, mode: str) -> np.ndarray:
     raise ValueError(f"unknown selection mode {mode!r}; expected one of {', '.join(MODES)}")
 
 
-def project(means: np.ndarray, camera) -> tuple[np.ndarray, np.ndarray]:
-    """Pixel coordinates (N, 2) of the centres seen by ``camera`` (the project's Camera), and whether each is in
-    front of it."""
-    w2c = np.asarray(camera.world_to_camera, dtype=np.float64)
-    pc = means.astype(np.float64) @ w2c[:3, :3].T + w2c[:3, 3]
-    z = pc[:, 2]
-    front = z > 1e-6
-    zs = np.where(front, z, 1.0)
-    uv = np.stack([camera.fx * pc[:, 0] / zs + camera.cx, camera.fy * pc[:, 1] / zs + camera.cy], axis=1)
-    return uv, front
-
-
 def in_rect(means, camera, x0, y0, x1, y1) -> np.ndarray:
-    uv, front = project(means, camera)
+    uv, front = camera.project(means)
     lo_x, hi_x = sorted((x0, x1))
     lo_y, hi_y = sorted((y0, y1))
     return front & (uv[:, 0] >= lo_x) & (uv[:, 0] <= hi_x) & (uv[:, 1] >= lo_y) & (uv[:, 1] <= hi_y)
 
 
 def in_brush(means, camera, x, y, radius) -> np.ndarray:
-    uv, front = project(means, camera)
+    uv, front = camera.project(means)
     return front & ((uv[:, 0] - x) ** 2 + (uv[:, 1] - y) ** 2 <= radius ** 2)
 
 
 def in_lasso(means, camera, polygon) -> np.ndarray:
     """Centres inside the closed polygon (K, 2) of pixel points (even-odd rule)."""
     poly = np.asarray(polygon, dtype=np.float64).reshape(-1, 2)
-    uv, front = project(means, camera)
+    uv, front = camera.project(means)
     if len(poly) < 3:
         return np.zeros(len(means), dtype=bool)
     x, y = uv[:, 0], uv[:, 1]
@@ -78,7 +66,7 @@ def in_sphere(means, center, radius) -> np.ndarray:
 
 
 @dataclass
-class EditState:
+class UndoEntry:
     """What undo restores: the model and which of its Gaussians are selected and hidden."""
 
     model: object  # ModelSnapshot
@@ -96,8 +84,8 @@ class Editor:
     selected: np.ndarray = None
     hidden: np.ndarray = None
     index: np.ndarray = None  # for each current Gaussian, its row in the model the editor started from
-    undo_stack: list[EditState] = field(default_factory=list)
-    redo_stack: list[EditState] = field(default_factory=list)
+    undo_stack: list[UndoEntry] = field(default_factory=list)
+    redo_stack: list[UndoEntry] = field(default_factory=list)
     version: int = 0  # bumped by every change the view must show
     on_keep: object = None  # called with each keep-mask (and the structure it was made on): a running trainer
     structure_version: int = 0  # the trainer's structure the rows refer to, counting the keeps handed to it
@@ -177,20 +165,38 @@ class Editor:
         self.extras = {**self.extras, **extras}
         self.version += 1
 
-    def set_extra(self, key: str, value, merge=None) -> None:
+    def set_extra(self, key: str, value, merge=None, was=None) -> None:
         """Another panel's edit (an immutable value) as an undo step. Changes carrying the same ``merge`` token one
-        after another (a slider's drag) make one step: undo goes back to before the drag."""
+        after another (a slider's drag) make one step: undo goes back to before the drag. ``was``: the value the
+        step undoes to, when the editor did not hold it yet (a crop box dragged before it was ever recorded)."""
+        if was is not None:
+            self.extras = {**self.extras, key: was}
         if merge is None or merge != self._merge or not self.undo_stack:
             self._push()
             self._merge = merge
         self.extras = {**self.extras, key: value}
         self.version += 1
 
-    # ------------------------------------------------------------------ history
-    def _state(self) -> EditState:
-        return EditState(self.model, self.selected.copy(), self.hidden.copy(), self.index, dict(self.extras))
+    def step(self, **changes) -> None:
+        """One undo step that sets several of model, selected, hidden, index and extras at once (a move of rows
+        from other files, a model joined to the scene)."""
+        self._push()
+        for name, value in changes.items():
+            setattr(self, name, value)
+        self.version += 1
 
-    def _restore(self, state: EditState) -> None:
+    def forget_history(self) -> None:
+        """The history starts here (a project was opened: its state is where undo stops)."""
+        self.undo_stack.clear()
+        self.redo_stack.clear()
+        self._merge = None
+        self.version += 1
+
+    # ------------------------------------------------------------------ history
+    def _state(self) -> UndoEntry:
+        return UndoEntry(self.model, self.selected.copy(), self.hidden.copy(), self.index, dict(self.extras))
+
+    def _restore(self, state: UndoEntry) -> None:
         self.model, self.selected, self.hidden, self.index = state.model, state.selected, state.hidden, state.index
         self.extras = dict(state.extras)
         self._merge = None

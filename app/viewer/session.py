@@ -21,7 +21,7 @@ import threading
 import time
 from collections import deque
 from concurrent.futures import Future
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, fields, replace
 from pathlib import Path
 from typing import Any, Callable
 
@@ -125,23 +125,36 @@ class LiveSession:
     def submit(self, fn: Callable[[Any], Any]) -> Future:
         """Run ``fn(trainer)`` on the training thread between two steps (never during one) and return a Future of
         its result. Every change to a running trainer's Gaussians (deletions, crops, the stylization's region) and
-        every read that must be whole (an export) goes through here, in the order submitted."""
-        if not self.running:
+        every read that must be whole (an export) goes through here, in the order submitted.
+
+        The call belongs to the trainer running now (whose model the user acted on): it runs on that trainer, at
+        the latest when its stage ends and before the stage saves; once the next stage has begun it is refused
+        (the Future's exception says so), never run on the next stage's trainer."""
+        trainer = self._trainer
+        if not self.running or trainer is None:
             raise ValueError("no trainer is running")
         future: Future = Future()
-        self._commands.put(("call", fn, future))
+        self._commands.put(("call", fn, future, trainer, self._status.stage))
         return future
 
     def update_config(self, **changes: Any) -> str | None:
-        """Hand config changes to the running trainer (applied at its next step); the refusal as one line, or
-        None when accepted (or when no trainer runs)."""
+        """Hand settings to the running trainer: it takes them between two steps, on the training thread, into the
+        config its next step reads. They were validated where they entered (a slider's config, a command line);
+        here only what the running trainer cannot take is refused, as one line: a setting it does not have, or one
+        fixed when it started (``FIXED_AT_START``). None when handed over."""
         trainer = self._trainer
-        if trainer is None:
+        if trainer is None or not self.running:
             return "no trainer is running"
-        try:
-            trainer.update_config(**changes)
-        except ValueError as exc:
-            return str(exc)
+        config = trainer.config
+        unknown = sorted(set(changes) - {f.name for f in fields(config)})
+        if unknown:
+            return f"the running {self._status.stage} has no setting {', '.join(unknown)}"
+        fixed = sorted(name for name in changes if name in getattr(trainer, "FIXED_AT_START", ())
+                       and changes[name] != getattr(config, name))
+        if fixed:
+            return (f"{', '.join(fixed)} can only be set before the {self._status.stage} starts (start a new run to "
+                    f"change {'it' if len(fixed) == 1 else 'them'})")
+        self._commands.put(("config", dict(changes), trainer))
         return None
 
     def close(self, timeout: float = 600.0) -> None:
@@ -210,14 +223,39 @@ class LiveSession:
         elif name == "step":
             self._paused = True
             return True
+        elif name == "config":
+            _, changes, trainer = command
+            if trainer is self._trainer:  # settings for a stage that has ended do not reach the next one
+                trainer.config = replace(trainer.config, **changes)
         elif name == "call":
-            _, fn, future = command
-            if future.set_running_or_notify_cancel():
+            _, fn, future, trainer, stage = command
+            if not future.set_running_or_notify_cancel():
+                pass
+            elif trainer is not self._trainer:
+                future.set_exception(RuntimeError(f"the {stage} stage ended before this reached its model: "
+                                                  "do it again on the model shown now"))
+            else:
                 try:
-                    future.set_result(fn(self._trainer))
+                    future.set_result(fn(trainer))
                 except Exception as exc:  # noqa: BLE001  (the caller reads it from the future)
                     future.set_exception(exc)
         return False
+
+    def _calls_before_save(self) -> None:
+        """The calls queued for the trainer whose stage ends run now, before it saves (a deletion clicked during
+        its last step is in the saved model); the other commands stay queued, in order."""
+        kept = []
+        while True:
+            try:
+                command = self._commands.get_nowait()
+            except queue.Empty:
+                break
+            if command[0] == "call":
+                self._handle(command)
+            else:
+                kept.append(command)
+        for command in kept:
+            self._commands.put(command)
 
     def _next_commands(self) -> bool:
         """Drain the commands; while paused wait for one (no CPU spent). True when one step is asked for."""
@@ -268,6 +306,7 @@ class LiveSession:
                           step=getattr(trainer, "step_count", getattr(trainer, "iteration", 0)))
                 self._train(trainer)
                 finished = trainer.done
+                self._calls_before_save()
                 self._set(state="finishing")
                 previous = stage.save(trainer, finished, self._stop.is_set)
                 if previous is not None:

@@ -3,9 +3,12 @@ running stylizer takes them, greyed where they shape a run from its start)."""
 
 from __future__ import annotations
 
+from dataclasses import replace
+
 import numpy as np
 from imgui_bundle import imgui
 
+from app.viewer.runs import set_style_region, stylizing
 from app.viewer.state import REGIONS
 from training.stylize import defaults as D
 from training.stylize.config import RANGES
@@ -15,19 +18,39 @@ GREY = imgui.ImVec4(0.6, 0.6, 0.6, 1.0)
 RESTART = "fixed while a stylization runs: it shapes the run from its first step (stop and start again)"
 
 
-def style_panel(app) -> None:
-    painting(app)
-    cfg = app.training.stylize
-    live = app.session.running and app.session.status().stage == "stylize"
-    changed, i = imgui.combo("stylize", REGIONS.index(app.edit.region), ["every Gaussian", "only the selection",
-                                                                         "all but the selection"])
+def set_stylize(session, ui, **changes) -> None:
+    """A slider moved: the settings are validated here, where they enter (StylizeConfig.validate), then handed to
+    the running stylizer (it takes them between two steps) and kept as the next run's."""
+    candidate = replace(ui.training.stylize, **changes)
+    try:
+        candidate.validate()
+    except ValueError as exc:
+        ui.messages.fail(str(exc))
+        return
+    if stylizing(session):
+        refusal = session.update_config(**changes)
+        if refusal:
+            ui.messages.fail(refusal)
+            return
+    ui.training.stylize = candidate
+    if any(k in changes for k in ("view_order", "virtual_views", "seed")):
+        ui.training.order_preview = None
+        ui.requests.overlays = True
+
+
+def style_panel(doc, session, ui) -> None:
+    painting(doc, session, ui)
+    cfg = ui.training.stylize
+    live = session.running and session.status().stage == "stylize"
+    changed, i = imgui.combo("stylize", REGIONS.index(ui.edit.region), ["every Gaussian", "only the selection",
+                                                                        "all but the selection"])
     if changed:
-        app.guarded("region", app.set_style_region, REGIONS[i])
+        ui.messages.guarded("region", set_style_region, doc, session, ui, REGIONS[i])
     imgui.set_item_tooltip("the others keep their colours exactly (select in the Edit panel)")
     losses = list(D.LOSSES)
     changed, i = imgui.combo("loss", losses.index(cfg.loss), losses)
     if changed:
-        app.set_stylize(loss=losses[i])
+        set_stylize(session, ui, loss=losses[i])
     # (label, config field, its current value): the spans come with the config (RANGES)
     floats = [("tau", "tau", cfg.tau), ("epsilon", "epsilon", cfg.epsilon), ("lambda_guide", "lambda_guide",
               cfg.lambda_guide), ("lambda_content", "lambda_content", cfg.lambda_content),
@@ -37,37 +60,37 @@ def style_panel(app) -> None:
         flags = imgui.SliderFlags_.logarithmic if log else 0
         changed, value = imgui.slider_float(label, float(value), lo, hi, "%.4g", flags)
         if changed:
-            app.set_stylize(**{name: value})
+            set_stylize(session, ui, **{name: value})
     changed, k = imgui.slider_int("K", cfg.k, *map(int, RANGES["k"][:2]))
     if changed:
-        app.set_stylize(k=k)
+        set_stylize(session, ui, k=k)
     per_view = cfg.iters_per_view or 0
     changed, per_view = imgui.slider_int("iterations per view", per_view, *map(int, RANGES["iters_per_view"][:2]),
                                          "%d" if per_view else "paper's")
     if changed:
-        app.set_stylize(iters_per_view=per_view or None)
+        set_stylize(session, ui, iters_per_view=per_view or None)
     imgui.separator_text("Fixed at the start")
     imgui.begin_disabled(live)
     presets = list(D.PRESETS)
     changed, i = imgui.combo("stylize preset", presets.index(cfg.preset), presets)
     if changed:
-        app.set_stylize(preset=presets[i])
+        set_stylize(session, ui, preset=presets[i])
     imgui.set_item_tooltip(f"paper: the paper's schedule at up to {D.PAPER_MAX_SIDE} px; quick: "
                            f"{D.QUICK_MAX_SIDE} px renders and {D.QUICK_ITER_FRACTION:g} of the iterations")
     orders = list(D.VIEW_ORDERS)
     changed, i = imgui.combo("view order", orders.index(cfg.view_order), orders)
     if changed:
-        app.set_stylize(view_order=orders[i])
+        set_stylize(session, ui, view_order=orders[i])
     changed, n = imgui.slider_int("virtual views", cfg.virtual_views, *map(int, RANGES["virtual_views"][:2]))
     if changed:
-        app.set_stylize(virtual_views=n)
+        set_stylize(session, ui, virtual_views=n)
     changed, ct = imgui.checkbox("colour transfer", cfg.color_transfer)
     if changed:
-        app.set_stylize(color_transfer=ct)
+        set_stylize(session, ui, color_transfer=ct)
     imgui.end_disabled()
     if live:
         imgui.text_colored(GREY, "greyed: " + RESTART)
-    trainer = app.session.trainer
+    trainer = session.trainer
     if live and trainer is not None:
         u = trainer.utilisation()
         if u:
@@ -76,33 +99,36 @@ def style_panel(app) -> None:
                        f"column entropy {u.get('column_entropy', float('nan')):.3f}")
 
 
-def painting(app) -> None:
+def painting(doc, session, ui) -> None:
     """The painting, with the live capacity map (column mass of the last transport plan) over it."""
-    if app.style_image is None:
+    if doc.painting is None:
         imgui.text_colored(GREY, "no painting: open one in the Scene panel")
         return
-    ctx = app.ctx
-    img = app.style_image
-    if app.style_texture is None:
+    ctx = ui.view.ctx
+    tex = ui.textures
+    img = doc.painting.image
+    if tex.painting_of is not img:  # a painting opened since: its own texture
+        if tex.painting is not None:
+            tex.painting.release()
         rgba = np.concatenate([img, np.ones(img.shape[:2] + (1,), np.float32)], axis=2)
-        app.style_texture = ctx.texture((img.shape[1], img.shape[0]), 4, np.ascontiguousarray(rgba).tobytes(),
-                                        dtype="f4")
+        tex.painting = ctx.texture((img.shape[1], img.shape[0]), 4, np.ascontiguousarray(rgba).tobytes(), dtype="f4")
+        tex.painting_of = img
     width = imgui.get_content_region_avail().x
     size = imgui.ImVec2(width, width * img.shape[0] / img.shape[1])
     pos = imgui.get_cursor_screen_pos()
-    imgui.image(imgui.ImTextureRef(app.style_texture.glo), size)
-    app.window.painting_rect = (int(pos.x), int(pos.y), int(size.x), int(size.y))  # where it is on screen (tests look)
-    trainer = app.session.trainer
+    imgui.image(imgui.ImTextureRef(tex.painting.glo), size)
+    ui.window.painting_rect = (int(pos.x), int(pos.y), int(size.x), int(size.y))  # where it is on screen (tests look)
+    trainer = session.trainer
     capacity = trainer.capacity_map() if trainer is not None and hasattr(trainer, "capacity_map") else None
-    changed, app.window.show_capacity = imgui.checkbox("capacity map", app.window.show_capacity)
-    if capacity is not None and app.window.show_capacity:
+    changed, ui.window.show_capacity = imgui.checkbox("capacity map", ui.window.show_capacity)
+    if capacity is not None and ui.window.show_capacity:
         heat = heatmap(capacity)
-        if app.capacity_texture is None or app.capacity_texture.size != (heat.shape[1], heat.shape[0]):
-            if app.capacity_texture is not None:
-                app.capacity_texture.release()
-            app.capacity_texture = ctx.texture((heat.shape[1], heat.shape[0]), 4, dtype="f4")
-        app.capacity_texture.write(np.ascontiguousarray(heat).tobytes())
-        imgui.get_window_draw_list().add_image(imgui.ImTextureRef(app.capacity_texture.glo), pos,
+        if tex.capacity is None or tex.capacity.size != (heat.shape[1], heat.shape[0]):
+            if tex.capacity is not None:
+                tex.capacity.release()
+            tex.capacity = ctx.texture((heat.shape[1], heat.shape[0]), 4, dtype="f4")
+        tex.capacity.write(np.ascontiguousarray(heat).tobytes())
+        imgui.get_window_draw_list().add_image(imgui.ImTextureRef(tex.capacity.glo), pos,
                                                imgui.ImVec2(pos.x + size.x, pos.y + size.y))
         imgui.text(f"capacity: {capacity.shape[1]}x{capacity.shape[0]} style features, "
                    f"max {capacity.max() * capacity.size:.1f}x the fair share")

@@ -6,36 +6,38 @@ from __future__ import annotations
 import numpy as np
 from imgui_bundle import imgui, implot
 
+from app.viewer.files import open_model
+from app.viewer.runs import start_reconstruction, start_stylization
 from app.viewer.view3d import RANGES
 
 RED = imgui.ImVec4(1.0, 0.4, 0.35, 1.0)
 
 
-def training_panel(app) -> None:
-    session = app.session
+def training_panel(doc, session, ui) -> None:
+    t = ui.training
     status = session.status()
     running = session.running
     imgui.begin_disabled(running)
     presets = ("quick", "standard", "paper")
-    changed, i = imgui.combo("preset", presets.index(app.training.preset), list(presets))
+    changed, i = imgui.combo("preset", presets.index(t.preset), list(presets))
     if changed:
-        app.training.preset = presets[i]
-    changed, iters = imgui.input_int("iterations (0: preset's)", app.training.recon_iters or 0, 100, 1000)
+        t.preset = presets[i]
+    changed, iters = imgui.input_int("iterations (0: preset's)", t.recon_iters or 0, 100, 1000)
     if changed:
-        app.training.recon_iters = iters if iters > 0 else None
-    changed, down = imgui.input_int("downscale (0: preset's)", app.training.downscale or 0)
+        t.recon_iters = iters if iters > 0 else None
+    changed, down = imgui.input_int("downscale (0: preset's)", t.downscale or 0)
     if changed:
-        app.training.downscale = down if down > 0 else None
+        t.downscale = down if down > 0 else None
     if imgui.button("Reconstruct"):
-        app.guarded("reconstruct", app.start_reconstruction)
+        ui.messages.guarded("reconstruct", start_reconstruction, doc, session, ui)
     imgui.same_line()
     if imgui.button("Stylize"):
-        app.guarded("stylize", app.start_stylization)
+        ui.messages.guarded("stylize", start_stylization, doc, session, ui)
     imgui.same_line()
     if imgui.button("Reconstruct + stylize"):
-        app.guarded("run", app.start_reconstruction, then_stylize=True)
-    imgui.begin_disabled(not app.training.runs)
-    _, app.training.continue_last_run = imgui.checkbox("continue the last stylized run", app.training.continue_last_run)
+        ui.messages.guarded("run", start_reconstruction, doc, session, ui, then_stylize=True)
+    imgui.begin_disabled(not t.runs)
+    _, t.continue_last_run = imgui.checkbox("continue the last stylized run", t.continue_last_run)
     imgui.end_disabled()
     imgui.set_item_tooltip("off: Stylize starts from the model as opened or reconstructed (runs do not compound); "
                            "on: from the last run's output")
@@ -56,23 +58,23 @@ def training_panel(app) -> None:
     imgui.same_line()
     if imgui.button("Stop"):
         session.stop()
-    changed, app.training.pause_at = imgui.input_int("pause at", app.training.pause_at)
+    changed, t.pause_at = imgui.input_int("pause at", t.pause_at)
     if changed:
-        session.pause_at(app.training.pause_at if app.training.pause_at > 0 else None)
+        session.pause_at(t.pause_at if t.pause_at > 0 else None)
     imgui.end_disabled()
-    changed, share = imgui.slider_float("training share", app.view.settings.training_share,
+    changed, share = imgui.slider_float("training share", ui.view.settings.training_share,
                                         *RANGES["training_share"])
     if changed:
-        app.view.settings.training_share = share
+        ui.view.settings.training_share = share
     imgui.set_item_tooltip("while a trainer runs, the view draws at most (1 - this) of the time: more leaves "
                            "the trainer more of the CPU, less makes the view smoother")
-    changed, app.training.refresh_s = imgui.slider_float("view refresh (s)", app.training.refresh_s,
+    changed, t.refresh_s = imgui.slider_float("view refresh (s)", t.refresh_s,
                                                          *RANGES["refresh_s"])
     imgui.set_item_tooltip("how often the view takes the trainer's latest model (each redraw costs it time)")
-    s = app.view.settings
+    s = ui.view.settings
     changed, s.training_scale = imgui.slider_float("live view resolution", s.training_scale,
                                                        *RANGES["training_scale"])
-    app.view.dirty |= changed
+    ui.view.dirty |= changed
     changed, s.motion_lod = imgui.slider_float("detail while moving", s.motion_lod, *RANGES["motion_lod"])
     imgui.set_item_tooltip("the share of the Gaussians (the most opaque and largest) drawn while the camera moves")
 
@@ -91,18 +93,18 @@ def training_panel(app) -> None:
         bits.append(f"PSNR {m['psnr']:.2f}")
     imgui.text("  ".join(bits))
     imgui.progress_bar(status.step / status.total if status.total else 0.0, imgui.ImVec2(-1, 0))
-    if app.error:
+    if ui.messages.error:
         imgui.push_text_wrap_pos(0.0)
-        imgui.text_colored(RED, app.error)
+        imgui.text_colored(RED, ui.messages.error)
         imgui.pop_text_wrap_pos()
-    loss_curves(app)
-    if app.training.runs:
+    loss_curves(session, ui)
+    if t.runs:
         imgui.separator_text("Stylized runs")
-        imgui.begin_disabled(app.session.running)
-        for i, path in enumerate(app.training.runs):
+        imgui.begin_disabled(session.running)
+        for i, path in enumerate(t.runs):
             # the run's result as the opened model: the editor, gizmo, colour and export act on it
             if imgui.small_button(f"Open##run{i}"):
-                app.guarded("open model", app.open_model, str(path))
+                ui.messages.guarded("open model", open_model, doc, session, ui, str(path))
             imgui.same_line()
             imgui.text(str(path))
         imgui.end_disabled()
@@ -112,14 +114,14 @@ CURVES = {"reconstruct": ("loss", "l1", "depth", "shape", "size"),
           "stylize": ("loss", "style_loss", "content_loss")}
 
 
-def loss_curves(app) -> None:
-    history = list(app.session.history)
+def loss_curves(session, ui) -> None:
+    history = list(session.history)
     if len(history) < 2:
         return
-    stage = app.session.status().stage
+    stage = session.status().stage
     steps = np.array([h["step"] for h in history], dtype=np.float64)
     # the plot takes the panel's height left below it (the list of runs keeps its lines), never less than 170 px
-    reserve = (len(app.training.runs) + 2) * imgui.get_text_line_height_with_spacing() if app.training.runs else 0.0
+    reserve = (len(ui.training.runs) + 2) * imgui.get_text_line_height_with_spacing() if ui.training.runs else 0.0
     height = max(170.0, imgui.get_content_region_avail().y - reserve)
     if implot.begin_plot("losses", imgui.ImVec2(-1, height)):
         fit = implot.AxisFlags_.auto_fit.value  # the curves grow every step: keep them all in view
@@ -136,16 +138,17 @@ def loss_curves(app) -> None:
         implot.end_plot()
 
 
-def messages_panel(app) -> None:
+def messages_panel(doc, session, ui) -> None:
     """Every one-line message of the session, newest at the bottom (errors in red), scrolled to the newest."""
-    if not app.messages:
+    lines = ui.messages.lines
+    if not lines:
         imgui.text_disabled("messages from loading, runs and edits appear here")
         return
-    for msg in app.messages:
+    for msg in lines:
         if msg.startswith("error:"):
             imgui.text_colored(RED, msg)
         else:
             imgui.text_wrapped(msg)
-    if app.window.messages_seen != len(app.messages):
+    if ui.window.messages_seen != len(lines):
         imgui.set_scroll_here_y(1.0)
-        app.window.messages_seen = len(app.messages)
+        ui.window.messages_seen = len(lines)

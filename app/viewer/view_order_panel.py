@@ -6,15 +6,17 @@ from __future__ import annotations
 import numpy as np
 from imgui_bundle import imgui
 
+from app.viewer.runs import current_view_index, trajectory
+
 GREY = imgui.ImVec4(0.6, 0.6, 0.6, 1.0)
 
 
-def view_order_panel(app) -> None:
-    items = app.trajectory()
+def view_order_panel(doc, session, ui) -> None:
+    items = trajectory(doc, session, ui)
     if not items:
         imgui.text_colored(GREY, "open a dataset to see the camera trajectory")
         return
-    current = app.current_view_index()
+    current = current_view_index(session)
     centers = np.array([c for _, c, _ in items], dtype=np.float64)
     xy = plane_coordinates(centers)
     avail = imgui.get_content_region_avail()
@@ -47,8 +49,8 @@ def view_order_panel(app) -> None:
         d = [np.hypot(p[0] - mouse.x, p[1] - mouse.y) for p in pts]
         pos = int(np.argmin(d))
         if d[pos] < 15:
-            app.snap_to_camera(items[pos][0])
-    app.window.drawn_order = [source for source, _, virtual in items if not virtual]
+            ui.requests.camera = items[pos][0]
+    ui.window.drawn_order = [source for source, _, virtual in items if not virtual]
     imgui.text(f"{len(items)} views in order" + (f", now at {current}" if current is not None else "")
                + "; click a camera to go there")
 

@@ -9,54 +9,54 @@ from __future__ import annotations
 
 from imgui_bundle import imgui
 
+from app.viewer import gizmo
+from app.viewer.camera_control import camera_span
+from app.viewer.gestures import handle_gesture, handle_pick
+
 VIEW_WINDOW = "3D view"
 
 
-def view_window(app) -> None:
+def view_window(doc, session, ui) -> None:
     """The gui function of the central dockable window (it calls begin/end itself: no padding, no scrolling)."""
-    from app.viewer.gizmo import begin_frame
-
-    begin_frame()
+    gizmo.begin_frame()
     imgui.push_style_var(imgui.StyleVar_.window_padding, imgui.ImVec2(0, 0))
     flags = (imgui.WindowFlags_.no_scrollbar | imgui.WindowFlags_.no_scroll_with_mouse
              | imgui.WindowFlags_.no_collapse)
     visible, _ = imgui.begin(VIEW_WINDOW, None, flags)
     imgui.pop_style_var()
     if visible:
-        _contents(app)
+        _contents(doc, session, ui)
     imgui.end()
 
 
-def _contents(app) -> None:
+def _contents(doc, session, ui) -> None:
     io = imgui.get_io()
     avail = imgui.get_content_region_avail()
     origin = imgui.get_cursor_screen_pos()
     scale = io.display_framebuffer_scale
     width, height = max(int(avail.x), 1), max(int(avail.y), 1)
-    app.window.view_rect = (int(origin.x), int(origin.y), width, height)  # window coordinates (logical pixels)
+    ui.window.view_rect = (int(origin.x), int(origin.y), width, height)  # window coordinates (logical pixels)
     size = (max(int(width * scale.x), 1), max(int(height * scale.y), 1))  # framebuffer pixels
-    view = app.view
+    view = ui.view
     # input first, then the picture: a move is drawn in the frame that received it
     buttons = (imgui.ButtonFlags_.mouse_button_left | imgui.ButtonFlags_.mouse_button_right
                | imgui.ButtonFlags_.mouse_button_middle)
-    from app.viewer import gizmo
-
-    if gizmo.holds_mouse(app):
+    if gizmo.holds_mouse(ui):
         imgui.dummy(imgui.ImVec2(width, height))  # the gizmo has the mouse: the canvas neither orbits nor selects
     else:
         imgui.invisible_button("3d view canvas", imgui.ImVec2(width, height), buttons)
     hovered, active = imgui.is_item_hovered(), imgui.is_item_active()
-    app.window.view_hovered = hovered or active
-    from app.viewer.edit_panel import handle_gesture
-
-    left_free = not gizmo.left_is_taken(app)
-    view.handle_mouse(imgui, hovered, active, left_orbits=app.edit.tool == "orbit" and left_free)
-    if not app.editor_shortcut_held():
-        view.handle_keys(imgui, min(app.window.frame_dt, 0.1), fly_speed=0.5 * app.fly_span(),
+    ui.window.view_hovered = hovered or active
+    left_free = not gizmo.left_is_taken(ui)
+    view.handle_mouse(imgui, hovered, active, left_orbits=ui.edit.tool == "orbit" and left_free)
+    if not (io.key_ctrl or io.key_super):  # under Ctrl or Super the keys are shortcuts, not camera moves
+        span = camera_span(doc.cameras)
+        view.handle_keys(imgui, min(ui.window.frame_dt, 0.1), fly_speed=0.5 * span,
                          enabled=not io.want_text_input and (imgui.is_window_focused() or hovered))
     else:
         view.flying = False
-    view.draw(size, split_ready=app.original is not None, training=app.training_now())
+    training = session.running and session.status().state == "running"
+    view.draw(size, split_ready=ui.training.before is not None, training=training)
     texture = view.texture
     draw_list = imgui.get_window_draw_list()
     if texture is not None and texture.size == size:
@@ -64,8 +64,7 @@ def _contents(app) -> None:
         draw_list.add_image(imgui.ImTextureRef(texture.glo), origin,
                             imgui.ImVec2(origin.x + width, origin.y + height), imgui.ImVec2(0, 1), imgui.ImVec2(1, 0))
     if left_free:
-        handle_gesture(app, hovered, active)  # drawn over the picture
-    from app.viewer.measure_panel import handle_pick
+        handle_gesture(doc, session, ui, hovered)  # drawn over the picture
+    handle_pick(ui, hovered)  # the measure and up tools' picks, drawn over the picture
+    gizmo.view_gizmo(doc, session, ui, hovered)
 
-    handle_pick(app, hovered)  # the measure and up tools' picks, drawn over the picture
-    gizmo.view_gizmo(app, hovered)

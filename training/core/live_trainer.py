@@ -58,7 +58,10 @@ class LiveTrainer:
         return self._structure_version
 
     def _structure_changed(self) -> None:
+        """Call with the lock held, in the same hold as the change: a snapshot never pairs new Gaussians with an
+        old structure version."""
         self._structure_version += 1
+        self._version += 1  # the next snapshot is a new one, whatever the change's own bookkeeping did
 
     # ------------------------------------------------------------------ snapshots
     def _snapshot_step(self) -> int:

@@ -166,15 +166,15 @@ MATCH_KEYS = ("match_agreement", "match_agreement_cells")
 def render_with_depth(gaussians, cameras, background=(0.0, 0.0, 0.0), backend: str = "auto", device="cpu",
                       cancel=None) -> tuple[list[np.ndarray], list[np.ndarray], list[np.ndarray]]:
     """(images (H, W, 3) in [0, 1], expected depths (H, W, 1), alphas (H, W, 1)) of a model at ``cameras``."""
-    renders = _render_all(gaussians, gaussians.sh, cameras, background, backend, device, mode="RGB+ED",
+    renders = render_all(gaussians, gaussians.sh, cameras, background, backend, device, mode="RGB+ED",
                           cancel=cancel)
     return [img[..., :3] for img, _ in renders], [img[..., 3:] for img, _ in renders], [a for _, a in renders]
 
 
-def _render_all(gaussians, sh, cameras, background, backend, device, mode: str, cancel=None):
+def render_all(gaussians, sh, cameras, background, backend, device, mode: str, cancel=None):
     """[(image (H, W, C), alpha (H, W, 1))] numpy, colours clamped to [0, 1] (not the depth channel)."""
     from training.core.messages import check_cancel
-    from training.raster.rasterize import rasterize
+    from training.raster.rasterize import camera_matrices, rasterize
 
     g = gaussians
     dt = g.means.dtype
@@ -187,8 +187,7 @@ def _render_all(gaussians, sh, cameras, background, backend, device, mode: str, 
         for cam in cameras:
             check_cancel(cancel)
             image, alpha, _ = rasterize(means, quats, scales, opacities, sh,
-                                        torch.as_tensor(cam.world_to_camera, dtype=dt, device=device),
-                                        torch.as_tensor(cam.K, dtype=dt, device=device), cam.width, cam.height,
+                                        *camera_matrices(cam, dt, device), cam.width, cam.height,
                                         sh_degree=g.sh_degree, background=bg, render_mode=mode, backend=backend)
             image = image.float().cpu()
             image[..., :3] = image[..., :3].clamp(0, 1)
@@ -246,15 +245,15 @@ def measure_stylizer(stylizer, lpips=None, taps: VGGTaps | None = None, original
             full[i] = image
         return full
 
-    styl = _render_all(g, g.sh, cameras, *args, mode="RGB+ED", cancel=cancel)
+    styl = render_all(g, g.sh, cameras, *args, mode="RGB+ED", cancel=cancel)
     lpips = _default_lpips(lpips)
-    orig = spread(_render_all(orig_model, orig_model.sh, few, *args, mode="RGB", cancel=cancel))
+    orig = spread(render_all(orig_model, orig_model.sh, few, *args, mode="RGB", cancel=cancel))
     pre = None
     if stylizer.pre_transform is not None:
         mask = stylizer.mask
         moved = keep_unselected(apply_to_gaussians(orig_model, stylizer.pre_transform), orig_model,
                                 None if mask is None else torch.from_numpy(mask))
-        pre = spread(_render_all(moved, moved.sh, few, *args, mode="RGB", cancel=cancel))
+        pre = spread(render_all(moved, moved.sh, few, *args, mode="RGB", cancel=cancel))
     order = measure_order(stylizer)
     out = measure_images([img[..., :3] for img, _ in styl], [img[..., 3:] for img, _ in styl],
                          [a for _, a in styl], orig, pre, cameras, order, stylizer.style_image,

@@ -29,6 +29,13 @@ RENDER_MODES = {
 BACKENDS = ("auto", "cpu", "cuda", "torch")
 
 
+def camera_matrices(camera, dtype=torch.float32, device=None) -> tuple[torch.Tensor, torch.Tensor]:
+    """``rasterize``'s ``viewmat`` (4, 4) and ``K`` (3, 3) of a pinhole camera (training/scene/camera.py): where the
+    scene's numpy cameras become tensors."""
+    return (torch.as_tensor(camera.world_to_camera, dtype=dtype, device=device),
+            torch.as_tensor(camera.K, dtype=dtype, device=device))
+
+
 @functools.lru_cache(maxsize=None)
 def _have_cpu_kernels() -> bool:
     try:
@@ -39,7 +46,7 @@ def _have_cpu_kernels() -> bool:
 
 
 @functools.lru_cache(maxsize=None)
-def _have_gsplat() -> bool:
+def have_gsplat() -> bool:
     try:
         import gsplat  # noqa: F401
     except Exception:  # gsplat can fail at import for reasons other than ImportError (CUDA toolkit, ABI)
@@ -55,7 +62,7 @@ def resolve_device(name: str, backend: str = "auto") -> torch.device:
     if name == "auto":
         if backend in ("cpu", "cuda"):
             return torch.device(backend)
-        return torch.device("cuda" if torch.cuda.is_available() and _have_gsplat() else "cpu")
+        return torch.device("cuda" if torch.cuda.is_available() and have_gsplat() else "cpu")
     return torch.device(name)
 
 
@@ -66,14 +73,14 @@ def choose_backend(backend: str, device: torch.device) -> str:
     if backend not in BACKENDS:
         raise ValueError(f"unknown rasterizer backend {backend!r}; expected one of {', '.join(BACKENDS)}")
     if backend == "auto":
-        if device.type == "cuda" and _have_gsplat():
+        if device.type == "cuda" and have_gsplat():
             return "cuda"
         if device.type == "cpu" and _have_cpu_kernels():
             return "cpu"
         return "torch"
     if backend == "cpu" and device.type != "cpu":
         raise ValueError(f"the cpu rasterizer needs CPU tensors, got {device}")
-    if backend == "cuda" and (device.type != "cuda" or not _have_gsplat()):
+    if backend == "cuda" and (device.type != "cuda" or not have_gsplat()):
         raise ValueError("the cuda rasterizer needs CUDA tensors and the gsplat package")
     return backend
 

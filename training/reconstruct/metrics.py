@@ -31,7 +31,7 @@ def render_view(
     render_mode: str = "RGB",
 ):
     """Render ``gaussians`` from ``camera``; returns rasterize()'s (image (H,W,C), alpha (H,W,1), info)."""
-    from training.raster.rasterize import rasterize
+    from training.raster.rasterize import camera_matrices, rasterize
 
     dev = gaussians.device
     deg = gaussians.sh_degree if sh_degree is None else sh_degree
@@ -42,8 +42,7 @@ def render_view(
         gaussians.scales,
         gaussians.opacities,
         gaussians.sh[:, :ncoef],
-        torch.as_tensor(camera.world_to_camera, dtype=torch.float32, device=dev),
-        torch.as_tensor(camera.K, dtype=torch.float32, device=dev),
+        *camera_matrices(camera, torch.float32, dev),
         camera.width,
         camera.height,
         sh_degree=deg,

@@ -393,6 +393,11 @@ class Reconstructor(LiveTrainer):
             counts = self.strategy.step_post_backward(cfg.densify, i, self.gaussians, self.optimizer, info,
                                                       cam.width, cam.height, self.generator)
             self._model_changed()
+            # under the lock with the change itself: a snapshot taken in between would pair the new Gaussians
+            # with the old structure version, and every edit made on it would be refused until the next step
+            restructured = len(self.gaussians) != n_before or any(counts.get(k) for k in ("cloned", "split", "pruned"))
+            if restructured:
+                self._structure_changed()
         t5 = time.perf_counter()
         times.update(rasterize=t1 - t0, loss=t2 - t1, backward=t3 - t2, optimizer=t4 - t3, densify=t5 - t4)
         self.last_timings = times
@@ -405,8 +410,7 @@ class Reconstructor(LiveTrainer):
                 **terms, "num_gaussians": len(self.gaussians), "sh_degree": self.active_sh_degree, "view": view,
                 **counts, "recovered": False, "times": times}
         self.events.emit("step", i, {**result, "total_iters": self.total_iters})
-        if len(self.gaussians) != n_before or any(counts.get(k) for k in ("cloned", "split", "pruned")):
-            self._structure_changed()
+        if restructured:
             self.events.emit("structure", i, {"num_gaussians": len(self.gaussians), **counts})
         if i == self.total_iters:
             self.events.emit("finished", i)
@@ -441,14 +445,15 @@ class Reconstructor(LiveTrainer):
         warnings.warn(message, RuntimeWarning, stacklevel=3)
         if locked:
             self._restore(self._snapshot)
+            self._structure_changed()
         else:
             with self._model_lock:
                 self._restore(self._snapshot)
+                self._structure_changed()
         self.last_timings = times
         result = {"step": step, "loss": float("nan"), "psnr": float("nan"), "num_gaussians": len(self.gaussians),
                   "sh_degree": self.active_sh_degree, "view": view, "recovered": True, "times": times}
         self.events.emit("warning", step, message=message)
-        self._structure_changed()
         self.events.emit("structure", step, {"num_gaussians": len(self.gaussians)})
         self.events.emit("step", step, {**result, "total_iters": self.total_iters})
         return result

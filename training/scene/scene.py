@@ -1,11 +1,8 @@
 """The scene every loader produces and every trainer consumes: cameras, images, SfM points, split, normalisation.
 
 Conventions (shared by the whole code base):
-- ``world_to_camera`` is a 4x4 float64 matrix in the OpenCV/COLMAP camera convention: x right, y down, z forward
-  (the camera looks along +z). A point p_w maps to p_c = R p_w + t.
-- Intrinsics are pinhole (distortion already removed by the loader), in pixels, for the image as stored in
-  ``Scene.images`` (so they are scaled together with ``--downscale``). The pixel centre convention is COLMAP's:
-  the centre of the top-left pixel is (0.5, 0.5).
+- Cameras are ``training.scene.camera.Camera`` (OpenCV axes, pinhole intrinsics in pixels), for the image as stored
+  in ``Scene.images`` (so they are scaled together with ``--downscale``).
 - Images are float32 RGB in [0, 1], shape (H, W, 3); masks, where present, float32 (H, W) in [0, 1].
 """
 
@@ -16,48 +13,11 @@ from pathlib import Path
 
 import numpy as np
 
+from training.scene.camera import Camera
+
+__all__ = ["Camera", "LLFF_HOLDOUT", "Scene", "camera_normalization", "llff_split", "over_background"]
+
 LLFF_HOLDOUT = 8  # every 8th view is held out for testing (the LLFF / 3DGS convention)
-
-
-@dataclass
-class Camera:
-    name: str  # image file name relative to the scene's image folder
-    width: int
-    height: int
-    fx: float
-    fy: float
-    cx: float
-    cy: float
-    world_to_camera: np.ndarray  # (4, 4) float64, OpenCV convention
-
-    @property
-    def K(self) -> np.ndarray:
-        """(3, 3) float64 intrinsic matrix."""
-        return np.array([[self.fx, 0.0, self.cx], [0.0, self.fy, self.cy], [0.0, 0.0, 1.0]])
-
-    @property
-    def camera_to_world(self) -> np.ndarray:
-        return np.linalg.inv(self.world_to_camera)
-
-    @property
-    def center(self) -> np.ndarray:
-        """(3,) camera position in world coordinates."""
-        R = self.world_to_camera[:3, :3]
-        t = self.world_to_camera[:3, 3]
-        return -R.T @ t
-
-    @property
-    def forward(self) -> np.ndarray:
-        """(3,) unit viewing direction (camera +z) in world coordinates."""
-        return self.world_to_camera[2, :3] / np.linalg.norm(self.world_to_camera[2, :3])
-
-    def scaled(self, factor: float) -> "Camera":
-        """The same camera for an image resized by ``factor`` (e.g. 0.5 for ``--downscale 2``)."""
-        w = max(1, int(round(self.width * factor)))
-        h = max(1, int(round(self.height * factor)))
-        sx, sy = w / self.width, h / self.height
-        return Camera(self.name, w, h, self.fx * sx, self.fy * sy, self.cx * sx, self.cy * sy,
-                      self.world_to_camera.copy())
 
 
 @dataclass

@@ -100,6 +100,16 @@ def sfm_settings(max_size: int, max_features: int, matcher: str, camera_model: s
             "camera_model": camera_model, "refine_principal_point": bool(refine_principal_point)}
 
 
+def sfm_fingerprint(photos: str | Path, max_size: int, max_features: int, matcher: str, camera_model: str,
+                    refine_principal_point: bool) -> dict:
+    """The fingerprint (photos and settings) a run with these arguments records in DATA/sfm_report.json."""
+    from training.scene.fingerprint import make_fingerprint, photos_fingerprint
+
+    return make_fingerprint(photos=photos_fingerprint(list_photos(Path(photos))),
+                            settings=sfm_settings(max_size, max_features, matcher, camera_model,
+                                                  refine_principal_point))
+
+
 def partial_folder(output: Path) -> Path:
     """Where ``run_sfm`` builds ``output`` before renaming it into place."""
     return output.parent / f".{output.name}{PARTIAL_SUFFIX}"

@@ -11,35 +11,25 @@ Pixel convention: COLMAP's, the centre of the top-left pixel is (0.5, 0.5).
 
 from __future__ import annotations
 
-from dataclasses import dataclass
-
 import numpy as np
+
+from training.scene.camera import Camera, pinhole
 
 # Models whose projection is an exact pinhole: nothing to undistort.
 PINHOLE_MODELS = ("SIMPLE_PINHOLE", "PINHOLE")
 
 
-@dataclass
-class Pinhole:
-    width: int
-    height: int
-    fx: float
-    fy: float
-    cx: float
-    cy: float
-
-
-def pinhole_of(camera) -> Pinhole | None:
+def pinhole_of(camera) -> Camera | None:
     """The pinhole parameters of a pycolmap camera that needs no undistortion, or None if it does."""
     p = list(camera.params)
     name = camera.model.name
     if name == "SIMPLE_PINHOLE":
-        return Pinhole(camera.width, camera.height, p[0], p[0], p[1], p[2])
+        return pinhole(camera.width, camera.height, p[0], p[0], p[1], p[2])
     if name == "PINHOLE":
-        return Pinhole(camera.width, camera.height, p[0], p[1], p[2], p[3])
+        return pinhole(camera.width, camera.height, p[0], p[1], p[2], p[3])
     extra = [p[i] for i in camera.extra_params_idxs()]
     if name in ("SIMPLE_RADIAL", "RADIAL", "OPENCV", "FULL_OPENCV") and all(v == 0.0 for v in extra):
-        return Pinhole(camera.width, camera.height, camera.focal_length_x, camera.focal_length_y,
+        return pinhole(camera.width, camera.height, camera.focal_length_x, camera.focal_length_y,
                        camera.principal_point_x, camera.principal_point_y)
     return None
 
@@ -51,7 +41,7 @@ def can_undistort(camera) -> bool:
     return bool(perspective() if callable(perspective) else perspective)
 
 
-def undistorted_pinhole(camera) -> Pinhole:
+def undistorted_pinhole(camera) -> Camera:
     """The pinhole camera pycolmap's undistorter makes for ``camera`` (a pycolmap.Camera)."""
     import pycolmap
 
@@ -60,10 +50,10 @@ def undistorted_pinhole(camera) -> Pinhole:
         return direct
     out = pycolmap.undistort_camera(pycolmap.UndistortCameraOptions(), camera)
     p = list(out.params)
-    return Pinhole(out.width, out.height, p[0], p[1], p[2], p[3])
+    return pinhole(out.width, out.height, p[0], p[1], p[2], p[3])
 
 
-def undistortion_map(camera, target: Pinhole) -> tuple[np.ndarray, np.ndarray]:
+def undistortion_map(camera, target: Camera) -> tuple[np.ndarray, np.ndarray]:
     """Source pixel coordinates for every target pixel.
 
     Returns (rows, cols), each (target.height, target.width) float32: the array indices (pixel centres at integer

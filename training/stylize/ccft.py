@@ -199,14 +199,19 @@ def ccft_loss(X: torch.Tensor, Y: torch.Tensor, guide: torch.Tensor | None = Non
 
     guide (m, C) is the previous view's ``CCFTResult.guide`` (None: no guidance yet, i.e. G = 0). Y is treated as a
     constant. The Sinkhorn runs in float64 whatever X's dtype; the loss has X's dtype. sinkhorn_backend: see
-    ``semi_balanced_sinkhorn``."""
+    ``semi_balanced_sinkhorn``. A direct caller's parameters are checked here, where they enter."""
+    if not (epsilon > 0 and tau > 0 and k >= 1 and iters >= 1 and lambda_guide >= 0):
+        raise ValueError(f"need epsilon > 0, tau > 0, k >= 1, iters >= 1, lambda_guide >= 0 "
+                         f"(got {epsilon}, {tau}, {k}, {iters}, {lambda_guide})")
+    return _ccft(X, Y, guide, k, epsilon, tau, lambda_guide, iters, chunk_elements, sinkhorn_backend)
+
+
+def _ccft(X, Y, guide, k, epsilon, tau, lambda_guide, iters, chunk_elements, sinkhorn_backend) -> CCFTResult:
+    """``ccft_loss`` with parameters already checked (by ``ccft_loss``, or where a stylizer's config entered)."""
     if X.dim() != 2 or Y.dim() != 2 or X.shape[1] != Y.shape[1]:
         raise ValueError(f"expected X (n, C) and Y (m, C) with the same C, got {tuple(X.shape)} and {tuple(Y.shape)}")
     if X.shape[0] == 0 or Y.shape[0] == 0:
         raise ValueError("CCFT needs at least one rendered and one style feature")
-    if not (epsilon > 0 and tau > 0 and k >= 1 and iters >= 1 and lambda_guide >= 0):
-        raise ValueError(f"need epsilon > 0, tau > 0, k >= 1, iters >= 1, lambda_guide >= 0 "
-                         f"(got {epsilon}, {tau}, {k}, {iters}, {lambda_guide})")
     m = Y.shape[0]
     k = min(int(k), m)
     timings: dict[str, float] = {}
@@ -245,6 +250,64 @@ def ccft_loss(X: torch.Tensor, Y: torch.Tensor, guide: torch.Tensor | None = Non
     return CCFTResult(loss=loss, guide=guide_next, plan=SparsePlan(indices, plan), column_mass=column_mass,
                       cost=cost.detach(), reachable=reachable, utilisation=util, column_entropy=entropy,
                       column_entropy_normalised=entropy_norm, timings=timings)
+
+
+def flatten_features(feats: torch.Tensor, what: str) -> torch.Tensor:
+    """(1, C, h, w) -> (h*w, C)."""
+    if feats.dim() != 4 or feats.shape[0] != 1:
+        raise ValueError(f"{what} features must be (1, C, h, w), got {tuple(feats.shape)}")
+    return feats[0].flatten(1).t()
+
+
+class CCFTStyleLoss:
+    """Capacity-controlled feature transport with cross-view guidance, as a style loss (training/stylize/
+    style_losses.py's interface). Its parameters are plain attributes the stylizer sets from its config (validated
+    where it entered) before each call; the formula reads them unchecked.
+
+    stats: loss, utilisation, column_entropy, column_entropy_normalised, reachable_fraction, and the timings
+    (seconds) similarity_topk_s, cost_s, sinkhorn_s, guide_s."""
+
+    name = "ccft"
+
+    def __init__(self, k: int = defaults.K, epsilon: float = defaults.EPSILON, tau: float = defaults.TAU,
+                 lambda_guide: float = defaults.LAMBDA_GUIDE, iters: int = defaults.SINKHORN_ITERS,
+                 chunk_elements: int = DEFAULT_CHUNK_ELEMENTS):
+        self.k = k
+        self.epsilon = epsilon
+        self.tau = tau
+        self.lambda_guide = lambda_guide
+        self.iters = iters
+        self.chunk_elements = chunk_elements
+        self.guide: torch.Tensor | None = None  # (m, C) from the previous call
+        self.guide_source = None  # the ``source`` of the call that built ``guide``
+        self.used_guide_source = None  # the source of the guide the last call used (None: unguided)
+        self.last_result = None  # the last CCFTResult (plan, column mass) for reports
+
+    def reset_guide(self) -> None:
+        self.guide = self.guide_source = None
+
+    def __call__(self, render_feats: torch.Tensor, style_feats: torch.Tensor,
+                 source=None) -> tuple[torch.Tensor, dict]:
+        """``source``: the view the render came from; the guide map this call builds is recorded as its."""
+        X = flatten_features(render_feats, "render")
+        Y = flatten_features(style_feats, "style").detach()
+        guide = self.guide
+        if guide is not None and (guide.shape != Y.shape or guide.device != Y.device):
+            guide = None  # the style features changed size (another resolution): the old guide does not apply
+        result = _ccft(X, Y, guide, self.k, self.epsilon, self.tau, self.lambda_guide, self.iters,
+                       self.chunk_elements, "auto")
+        self.used_guide_source = self.guide_source if guide is not None and self.lambda_guide > 0 else None
+        self.guide, self.guide_source = result.guide, source
+        self.last_result = result
+        stats = {
+            "loss": float(result.loss.detach()),
+            "utilisation": result.utilisation,
+            "column_entropy": result.column_entropy,
+            "column_entropy_normalised": result.column_entropy_normalised,
+            "reachable_fraction": float(result.reachable.to(torch.float64).mean()),
+        }
+        stats.update({f"{k}_s": v for k, v in result.timings.items()})
+        return result.loss, stats
 
 
 def transport_cost(X: torch.Tensor, Y: torch.Tensor, plan: SparsePlan) -> torch.Tensor:

@@ -3,71 +3,16 @@
 ``loss, stats = style_loss(render_feats, style_feats, source=view)`` with render_feats (1, C, h, w) and style_feats
 (1, C, h2, w2); ``source`` names the view the render came from. Parameters are plain attributes that may change
 between calls (the viewer edits them live). CCFT keeps its guide map from one call to the next (built from the
-previous call's render) and says whose it was: ``guide_source`` (the ``source`` of the call that built the map it
-holds) and ``used_guide_source`` (of the map the last call was guided by; None when that call had no guidance);
-``reset_guide()`` forgets it.
+previous call's render) and says whose it was (``guide_source``, ``used_guide_source``); ``reset_guide()`` forgets
+it. CCFT's own is in ``training.stylize.ccft`` beside its formula.
 """
 
 from __future__ import annotations
 
 import torch
 
-from training.stylize import defaults
-from training.stylize.ccft import DEFAULT_CHUNK_ELEMENTS, column_statistics, ccft_loss, l2_normalise
-
-
-def _flatten(feats: torch.Tensor, what: str) -> torch.Tensor:
-    """(1, C, h, w) -> (h*w, C)."""
-    if feats.dim() != 4 or feats.shape[0] != 1:
-        raise ValueError(f"{what} features must be (1, C, h, w), got {tuple(feats.shape)}")
-    return feats[0].flatten(1).t()
-
-
-class CCFTStyleLoss:
-    """Capacity-controlled feature transport with cross-view guidance (``training.stylize.ccft``).
-
-    stats: loss, utilisation, column_entropy, column_entropy_normalised, reachable_fraction, and the timings
-    (seconds) similarity_topk_s, cost_s, sinkhorn_s, guide_s."""
-
-    name = "ccft"
-
-    def __init__(self, k: int = defaults.K, epsilon: float = defaults.EPSILON, tau: float = defaults.TAU,
-                 lambda_guide: float = defaults.LAMBDA_GUIDE, iters: int = defaults.SINKHORN_ITERS, chunk_elements: int = DEFAULT_CHUNK_ELEMENTS):
-        self.k = k
-        self.epsilon = epsilon
-        self.tau = tau
-        self.lambda_guide = lambda_guide
-        self.iters = iters
-        self.chunk_elements = chunk_elements
-        self.guide: torch.Tensor | None = None  # (m, C) from the previous call
-        self.guide_source = None  # the ``source`` of the call that built ``guide``
-        self.used_guide_source = None  # the source of the guide the last call used (None: unguided)
-        self.last_result = None  # the last CCFTResult (plan, column mass) for reports
-
-    def reset_guide(self) -> None:
-        self.guide = self.guide_source = None
-
-    def __call__(self, render_feats: torch.Tensor, style_feats: torch.Tensor,
-                 source=None) -> tuple[torch.Tensor, dict]:
-        X = _flatten(render_feats, "render")
-        Y = _flatten(style_feats, "style").detach()
-        guide = self.guide
-        if guide is not None and (guide.shape != Y.shape or guide.device != Y.device):
-            guide = None  # the style features changed size (another resolution): the old guide does not apply
-        result = ccft_loss(X, Y, guide, k=self.k, epsilon=self.epsilon, tau=self.tau,
-                           lambda_guide=self.lambda_guide, iters=self.iters, chunk_elements=self.chunk_elements)
-        self.used_guide_source = self.guide_source if guide is not None and self.lambda_guide > 0 else None
-        self.guide, self.guide_source = result.guide, source
-        self.last_result = result
-        stats = {
-            "loss": float(result.loss.detach()),
-            "utilisation": result.utilisation,
-            "column_entropy": result.column_entropy,
-            "column_entropy_normalised": result.column_entropy_normalised,
-            "reachable_fraction": float(result.reachable.to(torch.float64).mean()),
-        }
-        stats.update({f"{k}_s": v for k, v in result.timings.items()})
-        return result.loss, stats
+from training.stylize.ccft import DEFAULT_CHUNK_ELEMENTS, CCFTStyleLoss, column_statistics, flatten_features, \
+    l2_normalise
 
 
 @torch.no_grad()
@@ -101,8 +46,8 @@ class NNFMStyleLoss:
 
     def __call__(self, render_feats: torch.Tensor, style_feats: torch.Tensor,
                  source=None) -> tuple[torch.Tensor, dict]:
-        Xn = l2_normalise(_flatten(render_feats, "render"))
-        Yn = l2_normalise(_flatten(style_feats, "style").detach())
+        Xn = l2_normalise(flatten_features(render_feats, "render"))
+        Yn = l2_normalise(flatten_features(style_feats, "style").detach())
         nn_idx = nearest_style_indices(Xn.detach(), Yn, self.chunk_elements)
         loss = (1.0 - (Xn * Yn[nn_idx]).sum(dim=1)).mean()
         m = Yn.shape[0]
@@ -137,8 +82,8 @@ class GramStyleLoss:
 
     def __call__(self, render_feats: torch.Tensor, style_feats: torch.Tensor,
                  source=None) -> tuple[torch.Tensor, dict]:
-        G_r = gram_matrix(_flatten(render_feats, "render"))
-        G_s = gram_matrix(_flatten(style_feats, "style").detach())
+        G_r = gram_matrix(flatten_features(render_feats, "render"))
+        G_s = gram_matrix(flatten_features(style_feats, "style").detach())
         loss = ((G_r - G_s) ** 2).mean()
         return loss, {"loss": float(loss.detach())}
 

@@ -331,10 +331,10 @@ class Stylizer(LiveTrainer):
 
     # ------------------------------------------------------------------ config sync
     def _sync(self) -> None:
-        """Apply the (possibly changed) config: loss object and its parameters, optimiser, learning rate."""
+        """Apply the (possibly changed) config: loss object and its parameters, optimiser, learning rate. The config
+        was validated where it entered (construction, ``update_config``, the viewer's settings)."""
         self._take_pending_config()
         cfg = self.config
-        cfg.validate()
         if self.style_loss is None or cfg.loss != self._loss_name:
             from training.stylize.style_losses import make_style_loss
 

@@ -1,0 +1,169 @@
+"""What File > Open, File > Save project and a file dropped on the window do: open a model, a dataset, a painting
+or a project into the document, join a model to the scene, save the session as a project. Each takes the
+document, the session and the UI state; the 3D view follows at its next frame (a new model is shown and framed,
+a new dataset places the camera at its first view).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import shutil
+from pathlib import Path
+
+import numpy as np
+
+from app.project import save_project as write_project
+from training.core.errors import InputError
+from training.model.model_io import FILE_DIALOG_PATTERN, has_model_suffix
+
+IMAGE_SUFFIXES = (".jpg", ".jpeg", ".png", ".exr", ".tif", ".tiff", ".webp", ".bmp")
+DIALOG_FILTERS = {"model": ["Gaussians", FILE_DIALOG_PATTERN],
+                  "data": ["Scenes", "transforms.json cameras.bin images.bin"],
+                  "style": ["Images", "*.jpg *.jpeg *.png *.exr *.tif"],
+                  "project": ["Projects", "*.splatproj"]}
+
+
+def _no_run(session, what: str) -> None:
+    if session.running:
+        # the view shows the run's model at every refresh: an opened file would be drawn over at once
+        raise ValueError(f"a run is going: stop it (Training panel) before opening {what}")
+
+
+def _model_opened(session, ui, path: str) -> None:
+    """The view shows (and the editor edits) the opened model from here on, not an ended run's."""
+    session.release()
+    ui.training.before = None
+    ui.training.shown_step = None
+    ui.training.base_model = str(path)
+    ui.edit.shown_version = None
+    ui.paths.model = str(path)
+
+
+def open_model(doc, session, ui, path: str) -> None:
+    _no_run(session, "another model")
+    doc.open(path)
+    _model_opened(session, ui, path)
+    ui.messages.say(f"opened {path} ({doc.editor.count} Gaussians)")
+
+
+def open_data(doc, session, ui, path: str) -> None:
+    doc.open_dataset(path)
+    ui.paths.data = str(path)
+    ui.training.order_preview = None
+    ui.requests.reset = ui.requests.overlays = True  # the view at the first camera, with the frustums
+    ui.messages.say(f"opened {path} ({len(doc.dataset.cameras)} cameras)")
+
+
+def open_style(doc, session, ui, path: str) -> None:
+    doc.open_painting(path)
+    ui.paths.style = str(path)
+    image = doc.painting.image
+    ui.messages.say(f"opened painting {path} ({image.shape[1]}x{image.shape[0]})")
+
+
+def add_to_scene(doc, session, ui, path: str) -> None:
+    """Join a model file to the scene (one undo step), selected and the gizmo's target; opens it when no model
+    is open."""
+    if doc.editor is None:
+        return open_model(doc, session, ui, path)
+    fid = doc.add(path)
+    ui.gizmo.target = f"model:{fid}"
+    ui.messages.say(f"added {path} to the scene ({doc.editor.count:,} Gaussians in all); it is selected: move it "
+                    "with the gizmo (G), or align it by three point pairs; Ctrl+Z takes it out")
+
+
+def open_dropped(doc, session, ui, path: str) -> None:
+    """A file or folder dropped on the window: a model file (.ply, .splat, .spz, .glb) opens as the model (or joins
+    the open one), an image as the painting, a folder or transforms.json as the dataset, a .splatproj as the
+    project."""
+    p = Path(path)
+    suffix = p.suffix.lower()
+    if has_model_suffix(p):
+        # joined, not replacing: a drop beside an open model is most often a part of the same scene, and Ctrl+Z
+        # takes it out again, while a replaced model's edits would be gone (File > Open model replaces)
+        add_to_scene(doc, session, ui, path)
+    elif suffix == ".splatproj":
+        open_project(doc, session, ui, path)
+    elif suffix in IMAGE_SUFFIXES:
+        open_style(doc, session, ui, path)
+    elif p.is_dir() or p.name == "transforms.json":
+        open_data(doc, session, ui, path)
+    else:
+        raise InputError(path, "not a model (.ply, .splat, .spz, .glb), a painting (an image), a dataset (a folder "
+                               "or transforms.json) or a project (.splatproj)")
+
+
+def open_project(doc, session, ui, path: str) -> None:
+    """A .splatproj: its models with their edits, the dataset, the painting, the camera path, and for the window
+    the stylization settings, the view's camera and the dock layout; one line for each thing it could not use."""
+    _no_run(session, "a project")
+    opened = doc.from_project(path, ui.out_dir() / "project_models")
+    project = opened.project
+    for line in opened.problems:
+        ui.messages.say(line)
+    if doc.editor is not None:
+        _model_opened(session, ui, str(doc.models.files[0].path))
+    ui.paths.data = doc.dataset.path if doc.dataset is not None else ui.paths.data
+    ui.paths.style = doc.painting.path if doc.painting is not None else ui.paths.style
+    if project.stylize:
+        ui.training.stylize = project.stylize_config()
+    ui.training.order_preview = None
+    ui.project.path, ui.project.layout_to_load = str(path), project.layout
+    ui.requests.reset = ui.requests.overlays = True
+    if project.camera is not None:
+        ui.requests.camera_to = (project.camera, project.up, project.camera_distance)
+    ui.messages.say(f"opened project {path}")
+
+
+def save_project(doc, session, ui, path: str | None = None, layout: str | None = None) -> Path:
+    """The session as a project file (atomically): to ``path``, or where it was opened or saved, or
+    OUTPUT/project.splatproj. ``layout``: the dock layout (default: imgui's, as it is now)."""
+    from app.camera_path import keyframe_from
+
+    if layout is None:
+        from imgui_bundle import imgui
+
+        layout = imgui.save_ini_settings_to_memory()
+    target = Path(path or ui.project.path or ui.out_dir() / "project.splatproj")
+    view = ui.view
+    camera, distance, up = None, 1.0, np.array([0.0, -1.0, 0.0])
+    if view is not None and view.camera is not None:
+        w, h = max(ui.window.view_rect[2], 1), max(ui.window.view_rect[3], 1)
+        camera, distance, up = keyframe_from(view.camera.camera(w, h)), view.camera.target_distance, view.camera.up
+    stylize = dataclasses.asdict(ui.training.stylize) if ui.training.stylize is not None else {}
+    project = doc.to_project(stylize=stylize, camera=camera, camera_distance=distance, up=up, layout=layout)
+    written = write_project(target, project)
+    # embedded models keep their member names: the file written holds them from now on
+    doc.project_source = written
+    ui.project.path = str(written)
+    ui.messages.say(f"saved project {written}")
+    return written
+
+
+def dialogs_available() -> bool:
+    return any(shutil.which(t) for t in ("zenity", "kdialog", "qarma", "matedialog"))
+
+
+def choose_file(title: str, filters: list[str]) -> str:
+    """A path from the system's file dialog ('' when cancelled); an error when no dialog program exists."""
+    if not dialogs_available():
+        raise ValueError("no file dialog program on this system (zenity or kdialog): type the path in the Scene "
+                         "panel, or drop the file on the window")
+    from imgui_bundle import portable_file_dialogs as pfd
+
+    chosen = pfd.open_file(title, "", filters).result()
+    return chosen[0] if chosen else ""
+
+
+OPENERS = {"model": open_model, "data": open_data, "style": open_style, "project": open_project,
+           "add": add_to_scene}
+
+
+def open_from_dialog(doc, session, ui, what: str) -> None:
+    """File menu: a file dialog (where a dialog program exists) for the model, dataset, painting or project, or
+    a model to add to the scene."""
+    filters = DIALOG_FILTERS["model" if what == "add" else what]
+    title = "Add model to scene" if what == "add" else f"Open {what}"
+    path = choose_file(title, filters)
+    if path:
+        OPENERS[what](doc, session, ui, path)

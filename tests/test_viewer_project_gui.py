@@ -1,0 +1,184 @@
+"""Projects saved and opened through the real window (File > Save project, Ctrl+S, a project dropped on the window
+or named on the command line) on GLFW's null platform: what a project holds survives a save, and a project the
+viewer cannot apply is one line in the window while the session goes on. `splatstyler export --project` bakes what
+was saved."""
+
+from __future__ import annotations
+
+import zipfile
+
+import numpy as np
+import pytest
+import torch
+
+from app.project import FileRef, ModelEntry, Project, save_project
+from tests.viewer_harness import PRELUDE, run_gui
+from training.model.colour_edit import ColourAdjustment, ColourEdits
+from training.model.gaussians import Gaussians
+from training.model.ply_io import write_ply
+
+pytestmark = pytest.mark.slow
+
+
+@pytest.fixture(autouse=True)
+def null_platform(monkeypatch):
+    monkeypatch.setenv("SPLATSTYLER_VIEWER_PLATFORM", "null")
+
+
+def write_model(path, n=150, seed=0):
+    g = torch.Generator().manual_seed(seed)
+    write_ply(path, Gaussians(torch.randn(n, 3, generator=g), torch.randn(n, 3, generator=g) - 3,
+                              torch.randn(n, 4, generator=g), torch.randn(n, generator=g),
+                              torch.randn(n, 1, 3, generator=g), torch.randn(n, 3, 3, generator=g), 1))
+
+
+def test_ctrl_s_keeps_the_embedded_model_of_an_opened_project(tmp_path):
+    """A project that carries its model inside, opened and saved again with Ctrl+S, still carries it: it opens
+    on a machine that has neither the model file nor the first session's output folder."""
+    write_model(tmp_path / "m.ply")
+    kept = np.arange(0, 150, 3)
+    project = save_project(tmp_path / "p.splatproj", Project([ModelEntry(FileRef(tmp_path / "m.ply"), "m",
+                                                                         kept=kept)]), embed=True)
+    (tmp_path / "m.ply").unlink()
+    first = run_gui(PRELUDE + f"""
+from imgui_bundle import imgui
+app = ViewerApp(Paths(out=str(OUT / "a")), project={str(project)!r})
+
+def test(ctx):
+    wait(ctx, lambda: app.document.editor is not None, 60, "the project's model")
+    ed = app.document.editor
+    ed.select(np.arange(ed.count) < 10)
+    ed.delete()
+    found["count"] = ed.count
+    ctx.key_press(imgui.Key.mod_ctrl | imgui.Key.s)
+    ctx.yield_(2)
+
+run(app, test)
+found["project"] = app.ui.project.path
+found["error"] = app.ui.messages.error
+Path(os.environ["RESULT"]).write_text(json.dumps(found))
+""", tmp_path)
+    assert first["error"] == "", first["error"]
+    assert first["project"] == str(project) and first["count"] == len(kept) - 10
+    assert any(name.startswith("models/") for name in zipfile.ZipFile(project).namelist())
+    import shutil
+
+    shutil.rmtree(tmp_path / "a")  # the first session's output folder (where it unpacked the model) is gone too
+    second = run_gui(PRELUDE + f"""
+app = ViewerApp(Paths(out=str(OUT / "b")))
+
+def test(ctx):
+    app.on_drop(None, [{str(project)!r}])
+    wait(ctx, lambda: app.document.editor is not None or app.ui.messages.error, 60, "the project's model")
+    found["count"] = app.document.editor.count if app.document.editor is not None else 0
+    found["messages"] = list(app.ui.messages.lines)
+
+run(app, test)
+found["error"] = app.ui.messages.error
+Path(os.environ["RESULT"]).write_text(json.dumps(found))
+""", tmp_path)
+    assert second["error"] == "", (second["error"], second["messages"])
+    assert second["count"] == first["count"]
+
+
+def test_a_project_records_the_model_as_opened_not_as_it_is_when_saved(tmp_path, capsys):
+    """The model file is rewritten after it was opened (a reconstruction writing to the same folder): the project
+    saved afterwards pairs the edits with the model they were made on, so `export --project` refuses the rewritten
+    file in one line instead of applying the edits to rows they were not made on."""
+    from app.cli import main
+
+    model = tmp_path / "m.ply"
+    write_model(model)
+    out = run_gui(PRELUDE + f"""
+from training.model.ply_io import read_ply, write_ply
+app = ViewerApp(Paths(model={str(model)!r}, out=str(OUT / "out")))
+
+def test(ctx):
+    ed = app.document.editor
+    ed.select(np.arange(ed.count) % 4 == 0)
+    ed.delete()
+    write_ply({str(model)!r}, read_ply({str(model)!r}).subset(__import__("torch").arange(149, -1, -1)))
+    ctx.set_ref("##MainMenuBar")
+    ctx.menu_click("File/Save project")
+    ctx.yield_(2)
+
+run(app, test)
+found["project"] = app.ui.project.path
+found["error"] = app.ui.messages.error
+Path(os.environ["RESULT"]).write_text(json.dumps(found))
+""", tmp_path)
+    assert out["error"] == "", out["error"]
+    code = main(["export", "--project", out["project"], "-o", str(tmp_path / "baked.ply")])
+    err = capsys.readouterr().err
+    assert code == 2 and not (tmp_path / "baked.ply").exists()
+    assert len(err.strip().splitlines()) == 1 and str(model) in err and "changed since" in err
+
+
+def test_a_camera_path_over_the_frame_limit_is_one_line_and_the_window_goes_on(tmp_path):
+    """A hand-edited project asking for a 4000 s path at 30 fps (120,000 frames; a path file may hold 100,000):
+    refused in one line naming the file, the window keeps drawing frames and holds no path."""
+    import json
+
+    key = {"world_to_camera": np.eye(4).tolist(), "fx": 100.0, "fy": 100.0, "cx": 32.0, "cy": 24.0,
+           "width": 64, "height": 48}
+    far = dict(key, world_to_camera=[[1, 0, 0, 1], [0, 1, 0, 0], [0, 0, 1, 0], [0, 0, 0, 1]])
+    path = tmp_path / "long.splatproj"
+    with zipfile.ZipFile(path, "w") as z:
+        z.writestr("project.json", json.dumps({"version": 1, "models": [], "camera_path": {
+            "duration": 4000.0, "fps": 30, "keyframes": [key, far]}}))
+    found = run_gui(PRELUDE + f"""
+app = ViewerApp(Paths(out=str(OUT / "out")))
+
+def test(ctx):
+    app.on_drop(None, [{str(path)!r}])
+    ctx.yield_(3)
+    frames = app.frames
+    t0 = time.time()
+    settle(ctx, 1.0)
+    found["frames_in_a_second"] = app.frames - frames
+    found["seconds"] = time.time() - t0
+    found["keys"] = len(app.document.camera_path.keyframes)
+
+run(app, test)
+found["error"] = app.ui.messages.error
+Path(os.environ["RESULT"]).write_text(json.dumps(found))
+""", tmp_path)
+    assert found["error"].startswith(f"{path}: ") and "\n" not in found["error"], found["error"]
+    assert "100000" in found["error"] and found["keys"] == 0
+    assert found["frames_in_a_second"] >= 3 and found["seconds"] < 5
+
+
+def test_colour_regions_that_do_not_fit_the_model_are_one_line_and_the_project_is_kept(tmp_path):
+    """A project whose colour regions have another length than its model's rows: one line when it opens (the edits
+    are not applied to rows they were not made for), no error on every frame, and Save keeps the project's entry
+    as it was."""
+    from app.project import open_project
+
+    write_model(tmp_path / "m.ply")
+    region = np.zeros(100, bool)
+    region[:50] = True
+    path = save_project(tmp_path / "p.splatproj", Project([ModelEntry(
+        FileRef(tmp_path / "m.ply"), "m", colour=ColourEdits([(region, ColourAdjustment(brightness=0.3))]))]))
+    found = run_gui(PRELUDE + f"""
+app = ViewerApp(Paths(out=str(OUT / "out")))
+
+def test(ctx):
+    app.on_drop(None, [{str(path)!r}])
+    settle(ctx, 1.0)
+    found["messages"] = list(app.ui.messages.lines)
+    found["error_now"] = app.ui.messages.error
+    ctx.set_ref("##MainMenuBar")
+    ctx.menu_click("File/Save project")
+    ctx.yield_(2)
+
+run(app, test)
+found["error"] = app.ui.messages.error
+Path(os.environ["RESULT"]).write_text(json.dumps(found))
+""", tmp_path)
+    assert found["error_now"] == "" and found["error"] == "", found["messages"]
+    lines = [m for m in found["messages"] if "colour" in m and "100" in m and "150" in m]
+    assert len(lines) == 1 and str(tmp_path / "m.ply") in lines[0], found["messages"]
+    again, _ = open_project(path)
+    assert len(again.models) == 1
+    (saved_region, adjustment), = again.models[0].colour.adjustments
+    assert np.array_equal(saved_region, region) and adjustment.brightness == pytest.approx(0.3)
