@@ -101,8 +101,8 @@ def run(args: argparse.Namespace) -> list[dict]:
             row = {"format": fmt if version is None else f"spz v{version}", "gaussians": len(g),
                    "sh_bands": result.sh_bands, "bytes": result.size,
                    "bytes_per_gaussian": round(result.size / len(g), 1),
-                   "size_vs_ply": round(result.size / ply["bytes"], 3), "write_s": round(write_s, 3),
-                   "read_s": round(read_s, 3), "write_vs_ply": round(write_s / ply["write_s"], 2),
+                   "size_vs_ply": round(result.size / ply["bytes"], 3), "write_s": float(f"{write_s:.3g}"),
+                   "read_s": float(f"{read_s:.3g}"), "write_vs_ply": round(write_s / ply["write_s"], 2),
                    "read_vs_ply": round(read_s / ply["read_s"], 2)}
             if render is not None:
                 row["psnr_db"] = round(_psnr(render(back), reference), 2)
