@@ -127,8 +127,11 @@ def _sfm(job: Job, out: Path, log_path: Path) -> dict[str, Any]:
     argv = ["sfm", job.spec["photos"], "-o", str(folder), *job.spec["flags"]]
     if sfm_complete(folder):
         recorded = json.loads(report.read_text()).get("fingerprint")
-        changed = "made before SfM recorded its inputs" if not recorded else \
-            difference(recorded, fingerprint_of(build_parser().parse_args(argv)))
+        if not recorded:  # from before fingerprints: kept, as an old checkpoint resumes, with one line
+            print(f"the scene in {folder} records no fingerprint of its photos (made by an older version), so they "
+                  f"could not be checked; using it as it is", flush=True)
+            return {"sfm": _plain_values(json.loads(report.read_text()))}
+        changed = difference(recorded, fingerprint_of(build_parser().parse_args(argv)))
         if changed is None:
             return {"sfm": _plain_values(json.loads(report.read_text()))}
         print(f"the scene in {folder} was made from other photos or settings ({changed}): running SfM again",
