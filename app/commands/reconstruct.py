@@ -13,6 +13,8 @@ import argparse
 import sys
 from pathlib import Path
 
+from app.commands import add_run_flags
+
 PRESETS = ("quick", "standard", "paper")
 
 
@@ -55,12 +57,11 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--backend", choices=("auto", "cpu", "cuda", "torch"), default=None, help="rasterizer backend")
     p.add_argument("--background", choices=("black", "white", "random"), default=None,
                    help="background colour behind the Gaussians (default black)")
-    p.add_argument("--resume", action="store_true", help="continue from OUT/checkpoint.pt (its settings, "
-                                                         "with --iters allowed to extend the run)")
     p.add_argument("--checkpoint-every", type=int, default=1000, metavar="N",
                    help="save OUT/checkpoint.pt every N iterations (0: only on Ctrl-C and at the end)")
     p.add_argument("--seed", type=int, default=None, help="random seed (default 0)")
-    p.add_argument("--no-progress", action="store_true", help="no progress bar")
+    add_run_flags(p, progress="no progress bar (the time estimate is still printed)",
+                  resume="continue from OUT/checkpoint.pt (its settings, with --iters allowed to extend the run)")
     p.set_defaults(func=run)
 
 
@@ -221,7 +222,10 @@ def run(args) -> int:
     test = trainer.evaluate(scene.test_indices)
     views = _write_results(trainer, out, scene.test_indices or scene.train_indices)
     stats = scale_stats(model.scales / trainer.extent)
+    from training.core.version import version
+
     report = {
+        "splatstyler_version": version(),
         "train_psnr": train["psnr"], "train_ssim": train["ssim"],
         "test_psnr": test["psnr"], "test_ssim": test["ssim"],
         "test_lpips": views["lpips"] if scene.test_indices else None, "test_views": test["views"],

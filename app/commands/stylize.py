@@ -15,6 +15,8 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
+from app.commands import add_run_flags
+
 # Pairs of views per range (neighbours, 7 apart) for the consistency metric: evenly spaced along the trajectory.
 METRIC_PAIRS = 20
 
@@ -85,6 +87,7 @@ def register(sub: argparse._SubParsersAction) -> None:
                         f"nearest path (default {METRIC_PAIRS})")
     p.add_argument("--no-metrics", action="store_true",
                    help="skip the report's consistency, style and content metrics (docs/evaluation.md)")
+    add_run_flags(p, no_resume="a stopped run keeps the model so far in OUT/point_cloud.ply")
     p.set_defaults(func=run)
 
 
@@ -148,7 +151,7 @@ def run(args: argparse.Namespace) -> int:
 
     t0 = time.perf_counter()
     bar = ProgressBar(desc="stylizing", postfix={"loss": "loss", "style_loss": "style",
-                                                    "trajectory_position": "view"})
+                                                    "trajectory_position": "view"}, disable=args.no_progress)
     try:
         report = stylize_to_folder(Path(args.model), Path(args.data), Path(args.style), Path(args.output), config,
                                    vgg_weights=args.vgg_weights, listener=bar, mask=mask,

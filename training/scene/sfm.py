@@ -32,6 +32,7 @@ from typing import Callable
 
 from training.core.atomic_write import atomic_open
 from training.core.errors import InputError
+from training.core.version import version
 from training.scene.image_io import is_image_file, read_header, read_image_with_alpha, resize_image, write_image
 
 # Exhaustive matching compares every pair: measured 47 s for 20 photos at 640x480 on 2 cores (190 pairs), so 50
@@ -191,7 +192,7 @@ def run_sfm(photos_dir: str | Path, output: str | Path, max_size: int = 1600, ma
         seconds["undistort"] = time.perf_counter() - t
 
         # the model goes in last: a folder with sparse/0 is a complete scene
-        report = quality_summary(reconstruction, len(photos))
+        report = {"splatstyler_version": version(), **quality_summary(reconstruction, len(photos))}
         report.update(camera_model=camera_model, refine_principal_point=refine_principal_point, matcher=matcher,
                       mapping=mapping, unregistered=unregistered, no_overlap=no_overlap,
                       seconds={k: round(v, 2) for k, v in seconds.items()})

@@ -111,7 +111,10 @@ def stylize_to_folder(model: Path, data: Path, style: Path, out: Path, config: S
     stylizer.times.add("write_outputs", time.perf_counter() - t0)
 
     last = stylizer.history[-1] if stylizer.history else None
+    from training.core.version import version
+
     report: dict[str, Any] = {
+        "splatstyler_version": version(),
         "model": str(model), "data": str(data), "style": str(style), "output": str(out),
         "config": stylizer.config_dict(),
         "scene_kind": stylizer.kind,
