@@ -97,3 +97,11 @@ class CountBar:
         if self.bar is not None:
             self.bar.close()
 
+
+def say_above_bars(line: str) -> None:
+    """Print a line on stderr without tearing a progress bar that is being drawn there."""
+    from tqdm import tqdm
+
+    tqdm.write(line, file=sys.stderr)
+    sys.stderr.flush()
+

@@ -83,3 +83,48 @@ def test_eval_resume_refuses_an_output_with_nothing_to_continue(tmp_path, capsys
     err = capsys.readouterr().err
     assert "holds no recorded job of this grid for --resume to continue" in err, err
 
+
+@pytest.mark.slow
+def test_reconstruct_no_progress_leaves_no_bar_and_reports_the_version_and_estimate(tmp_path, capsys):
+    from assets.demo.scene import make_demo_scene, write_demo_scene
+
+    folder = write_demo_scene(tmp_path / "scene", make_demo_scene(num_views=8, width=48, height=36, num_points=200))
+    for flags, out in (([], "a"), (["--no-progress"], "b")):
+        assert main(["reconstruct", str(folder), "-o", str(tmp_path / out), "--iters", "40", "--downscale", "1",
+                     *flags]) == 0
+        err = capsys.readouterr().err
+        assert ("reconstruct:" in err) == (not flags), err  # tqdm's bar, named by its desc
+        assert "estimated training time: about" in err
+    report = json.loads((tmp_path / "b" / "report.json").read_text())
+    assert report["splatstyler_version"] == version("splatstyler")
+    est = report["time_estimate"]
+    assert est["first_estimate_s"] > 0 and est["actual_s"] > 0
+    assert est["actual_over_first_estimate"] == pytest.approx(est["actual_s"] / est["first_estimate_s"])
+    assert len(est["load_average_1_5_15"]["at_start"]) == 3
+
+
+@pytest.mark.slow
+def test_stylize_no_progress_still_says_its_estimate_and_reports_it(tmp_path, capsys):
+    import numpy as np
+
+    from assets.demo.scene import make_demo_scene, write_demo_scene
+    from training.model.gaussian_init import gaussians_from_points
+    from training.model.ply_io import write_ply
+    from training.scene.image_io import write_image
+
+    demo = make_demo_scene(num_views=4, width=64, height=48, num_points=800, supersample=1)
+    data = write_demo_scene(tmp_path / "scene", demo)
+    write_ply(tmp_path / "model.ply", gaussians_from_points(demo.points, demo.point_colors, sh_degree=1))
+    yy, xx = np.mgrid[0:96, 0:96] / 96.0
+    write_image(tmp_path / "style.png", np.stack([np.sin(9 * xx) * 0.5 + 0.5, yy, 0.5 + 0 * xx], -1))
+    # 4 views x 4 iterations: 2 warm-up and 8 timed steps leave 6 for the estimate to be said before the end
+    assert main(["stylize", str(tmp_path / "model.ply"), "--data", str(data), "--style", str(tmp_path / "style.png"),
+                 "-o", str(tmp_path / "out"), "--preset", "quick", "--max-side", "64", "--iters-per-view", "4",
+                 "--no-metrics", "--no-progress"]) == 0
+    err = capsys.readouterr().err
+    assert "estimated stylization time: about" in err and "for 16 iterations" in err, err
+    assert "stylizing:" not in err  # no bar
+    report = json.loads((tmp_path / "out" / "report.json").read_text())
+    assert report["splatstyler_version"] == version("splatstyler")
+    est = report["time_estimate"]
+    assert est["first_estimate_at_iteration"] == 10 and est["first_estimate_s"] > 0 and est["actual_s"] > 0

@@ -4,7 +4,9 @@ Writes OUT/point_cloud.ply (standard 3DGS layout), OUT/report.json (metrics and 
 OUT/contact_sheet.png (each test view's photo beside its render, and the depth; training/reconstruct/results.py)
 and OUT/checkpoint.pt (every --checkpoint-every iterations, on Ctrl-C and at the end; ``--resume`` continues from
 it). The training resolution comes from the preset's target long side (training/reconstruct/resolution.py); a
-time estimate from the first timed steps is printed before the progress bar.
+time estimate is printed a tenth into the run, when the first large Gaussians have shrunk, and again whenever it
+moves by more than 20 % (training/reconstruct/time_estimate.py); report.json keeps the first one and the actual
+time.
 """
 
 from __future__ import annotations
@@ -60,7 +62,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--checkpoint-every", type=int, default=1000, metavar="N",
                    help="save OUT/checkpoint.pt every N iterations (0: only on Ctrl-C and at the end)")
     p.add_argument("--seed", type=int, default=None, help="random seed (default 0)")
-    add_run_flags(p, progress="no progress bar (the time estimate is still printed)",
+    add_run_flags(p, progress="no progress bar (the time estimates are still printed)",
                   resume="continue from OUT/checkpoint.pt (its settings, with --iters allowed to extend the run)")
     p.set_defaults(func=run)
 
@@ -128,8 +130,8 @@ def run(args) -> int:
     from training.core.atomic_write import atomic_open
     from training.reconstruct.metrics import constant_color_psnr
     from training.reconstruct.resolution import training_downscale
-    from training.reconstruct.time_estimate import (TIMED_STEPS, estimate_seconds, format_duration,
-                                                      time_first_steps)
+    from training.core.run_estimate import RunEstimate, format_duration
+    from training.reconstruct.time_estimate import ReconstructSteps
     from training.core.atomic_write import check_output_dir, make_output_dir
 
     _one_line_warnings()
@@ -183,19 +185,14 @@ def run(args) -> int:
         s["report_extra"] = report_extra
         save_checkpoint(ckpt_path, s)
 
-    from app.progress import ProgressBar
+    from app.progress import ProgressBar, say_above_bars
 
+    # said a tenth into the run, again when densification or other jobs move it by more than 20 %
+    estimate = RunEstimate(ReconstructSteps(trainer), say=say_above_bars, what="training")
+    trainer.add_listener(estimate)
     t_start = time.perf_counter()
+    estimate.begin(trainer.step_count)
     try:
-        start_step = trainer.step_count
-        per_step = time_first_steps(trainer)
-        if per_step > 0:
-            estimate = estimate_seconds(per_step, trainer.total_iters - trainer.step_count)
-            report_extra["estimated_seconds"] = (time.perf_counter() - t_start) + estimate
-            print(f"estimated time: about {format_duration(report_extra['estimated_seconds'])} on this machine for "
-                  f"{trainer.total_iters - start_step} iterations (from {TIMED_STEPS} timed steps at "
-                  f"{1000 * per_step:.0f} ms each; other jobs on the machine make it longer)",
-                  file=sys.stderr, flush=True)
         bar = ProgressBar(initial=trainer.step_count, desc="reconstruct", disable=args.no_progress,
                           postfix={"loss": "loss", "psnr": "psnr", "num_gaussians": "n"})
         trainer.add_listener(bar)
@@ -215,6 +212,10 @@ def run(args) -> int:
     bar.close()
     seconds = elapsed + (time.perf_counter() - t_start)
     checkpoint()
+    timing = estimate.record()
+    if timing["first_estimate_s"] is not None:
+        report_extra["estimated_seconds"] = timing["first_estimate_s"]  # this session's, as printed first
+    report_extra["time_estimate"] = timing
 
     model = trainer.export_gaussians()
     write_ply(out / "point_cloud.ply", model)

@@ -87,7 +87,8 @@ def register(sub: argparse._SubParsersAction) -> None:
                         f"nearest path (default {METRIC_PAIRS})")
     p.add_argument("--no-metrics", action="store_true",
                    help="skip the report's consistency, style and content metrics (docs/evaluation.md)")
-    add_run_flags(p, no_resume="a stopped run keeps the model so far in OUT/point_cloud.ply")
+    add_run_flags(p, progress="no progress bar (the time estimates are still printed)",
+                  no_resume="a stopped run keeps the model so far in OUT/point_cloud.ply")
     p.set_defaults(func=run)
 
 
@@ -147,16 +148,25 @@ def run(args: argparse.Namespace) -> int:
     if args.metric_pairs < 1:
         raise InputError(None, f"--metric-pairs must be at least 1, got {args.metric_pairs}")
     mask = selection_from_args(args)
-    from app.progress import ProgressBar
+    from app.progress import ProgressBar, say_above_bars
+    from training.core.run_estimate import RunEstimate, UniformSteps
 
     t0 = time.perf_counter()
     bar = ProgressBar(desc="stylizing", postfix={"loss": "loss", "style_loss": "style",
                                                     "trajectory_position": "view"}, disable=args.no_progress)
+    # the steps cost the same throughout (fixed Gaussians and render size): timed, and timed again as the run goes
+    estimate = RunEstimate(UniformSteps(), say=say_above_bars, what="stylization")
+
+    def listener(event) -> None:
+        bar(event)
+        estimate(event)
+
     try:
         report = stylize_to_folder(Path(args.model), Path(args.data), Path(args.style), Path(args.output), config,
-                                   vgg_weights=args.vgg_weights, listener=bar, mask=mask,
+                                   vgg_weights=args.vgg_weights, listener=listener, mask=mask,
                                    log=lambda line: print(line, flush=True),
-                                   metrics=None if args.no_metrics else Measure(args.metric_pairs))
+                                   metrics=None if args.no_metrics else Measure(args.metric_pairs),
+                                   report_extra=lambda: {"time_estimate": estimate.record()})
     finally:
         bar.close()
     print(f"stylized {report['num_views']} views in {report['iterations']} iterations "

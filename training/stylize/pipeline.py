@@ -36,12 +36,14 @@ def choose_downscale(data: Path, max_side: int) -> int:
 
 def stylize_to_folder(model: Path, data: Path, style: Path, out: Path, config: StylizeConfig,
                       vgg_weights: str | None = None, listener=None, log=None, mask=None,
-                      metrics: Callable[[Stylizer], dict[str, Any]] | None = None) -> dict[str, Any]:
+                      metrics: Callable[[Stylizer], dict[str, Any]] | None = None,
+                      report_extra: Callable[[], dict[str, Any]] | None = None) -> dict[str, Any]:
     """Run the job and return the report (also written to OUT/report.json). ``listener`` receives the stylizer's
     events (training/core/messages.py); ``log`` (a str -> None callable) gets one line describing the run.
     ``mask``: (N,) bool, stylize only those Gaussians (Stylizer's ``mask``). ``metrics(stylizer)``, called once the
     stylization has finished, gives the report's "metrics" (the CLI passes training/evaluate's measures, which sit
-    above this package)."""
+    above this package). ``report_extra()``, called as the report is written, adds its entries (the CLI's time
+    estimate)."""
     from training.core.atomic_write import atomic_open, check_output_dir, make_output_dir
     from training.scene.image_io import write_image
     from training.model.ply_io import read_ply, write_ply
@@ -149,6 +151,8 @@ def stylize_to_folder(model: Path, data: Path, style: Path, out: Path, config: S
         "renders": render_names,
         "contact_sheet": CONTACT_SHEET,
     }
+    if report_extra is not None:
+        report.update(report_extra())
     with atomic_open(out / "report.json", "w") as f:
         json.dump(_jsonable(report), f, indent=2)
         f.write("\n")
