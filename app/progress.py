@@ -104,4 +104,3 @@ def say_above_bars(line: str) -> None:
 
     tqdm.write(line, file=sys.stderr)
     sys.stderr.flush()
-

@@ -8,6 +8,7 @@ everywhere, and its ``--help`` lists which of them it takes.
 from __future__ import annotations
 
 import argparse
+import textwrap
 
 # The commands that take add_run_flags's flags (tests/test_cli_conventions.py checks each one).
 LONG_COMMANDS = ("reconstruct", "stylize", "sfm", "video", "eval", "demo")
@@ -22,7 +23,8 @@ def add_run_flags(parser: argparse.ArgumentParser, *, progress: str = "no progre
     text = f"the flags the long commands ({', '.join(LONG_COMMANDS)}) share; this one takes {taken}"
     if not resume and no_resume:
         text += f" (no --resume: {no_resume})"
-    group = parser.add_argument_group("run options", text)
+    # wrapped here: commands with RawDescriptionHelpFormatter print a group's text as given
+    group = parser.add_argument_group("run options", textwrap.fill(text, 78))
     group.add_argument("--no-progress", action="store_true", help=progress)
     # SUPPRESS: `splatstyler --debug COMMAND` sets it before the command's parser runs, which must not reset it
     group.add_argument("--debug", action="store_true", default=argparse.SUPPRESS,

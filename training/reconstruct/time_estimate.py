@@ -33,7 +33,7 @@ import torch
 WARMUP_STEPS = 2  # the first step compiles numba kernels and fills caches
 CALIBRATE_AT = 0.1  # of the run
 TIMED_STEPS = 8  # at least this many timed steps behind any estimate
-WINDOW = 25  # the latest steps' mean is the current step time
+WINDOW = 50  # the latest steps' mean is the current step time (shorter windows follow every burst of other jobs)
 PROBE_STEPS = 3
 NO_CAP_GROWTH = 10.0
 

@@ -16,6 +16,7 @@ from typing import Any, Callable
 import numpy as np
 
 from training.core.errors import InputError
+from training.core.version import version
 from training.stylize.trainer import StylizeConfig, Stylizer
 
 SHEET_VIEWS = 4
@@ -113,8 +114,6 @@ def stylize_to_folder(model: Path, data: Path, style: Path, out: Path, config: S
     stylizer.times.add("write_outputs", time.perf_counter() - t0)
 
     last = stylizer.history[-1] if stylizer.history else None
-    from training.core.version import version
-
     report: dict[str, Any] = {
         "splatstyler_version": version(),
         "model": str(model), "data": str(data), "style": str(style), "output": str(out),
