@@ -53,6 +53,9 @@ def test_a_slowdown_beyond_20_percent_is_said_again_and_a_small_one_is_not():
     # each revision differs from the one said before it by more than 20 %
     said_totals = [rec["first_estimate_s"]] + [r["estimate_s"] for r in rec["revisions"]]
     assert all(abs(b - a) > 0.2 * a for a, b in zip(said_totals, said_totals[1:]))
+    # every look is kept, said or not: the first, the revisions and the ones that moved too little
+    assert len(rec["looks"]) > 1 + len(rec["revisions"])
+    assert {r["iteration"] for r in rec["revisions"]} < {look["iteration"] for look in rec["looks"]}
     assert rec["actual_s"] == pytest.approx(49 + 50 * 1.1 + 301 * 3.0)
 
 

@@ -72,6 +72,7 @@ class RunEstimate:
         self._t_last: float | None = None
         self.first: dict[str, Any] | None = None
         self.revisions: list[dict[str, Any]] = []
+        self.looks: list[dict[str, Any]] = []  # every estimate made, said or not
         self.said_total: float | None = None
         self.load_at_begin: list[float] | None = None
 
@@ -106,6 +107,9 @@ class RunEstimate:
         left = self.model.seconds_left(step, total)
         estimate = {"step": step, "total_s": elapsed + left, "left_s": left, "elapsed_s": elapsed,
                     "basis": self.model.basis()}
+        load = load_average()
+        self.looks.append({"iteration": step, "elapsed_s": round(elapsed, 2), "estimate_s": round(elapsed + left, 2),
+                           "load_1min": load[0] if load else None, "basis": estimate["basis"]})
         if self.first is None:
             self.first = {**estimate, "load_average": load_average()}
             self.said_total = estimate["total_s"]
@@ -132,6 +136,7 @@ class RunEstimate:
             "first_estimate_basis": first.get("basis"),
             "revisions": [{"iteration": r["step"], "estimate_s": r["total_s"], "basis": r["basis"]}
                           for r in self.revisions],
+            "looks": self.looks,
             "actual_s": actual_s,
             "actual_over_first_estimate": (actual_s / first["total_s"]
                                            if actual_s and first.get("total_s") else None),
