@@ -43,9 +43,10 @@ def run_baseline_cell(model: Path, data: Path, painting: Path, out: Path, flags:
         names.append(name)
     from training.core.version import version
 
-    report = {"splatstyler_version": version(), "method": "2d", "model": str(model), "data": str(data), "style": str(painting),
-              "config": stylizer.config_dict(), "num_views": len(stylizer.cameras), "renders": names,
-              "metrics": metrics, "metrics_version": METRICS_VERSION, "time_s": {"total": time.perf_counter() - t0}}
+    report = {"splatstyler_version": version(), "method": "2d", "model": str(model), "data": str(data),
+              "style": str(painting), "config": stylizer.config_dict(), "num_views": len(stylizer.cameras),
+              "renders": names, "metrics": metrics, "metrics_version": METRICS_VERSION,
+              "time_s": {"total": time.perf_counter() - t0}}
     with atomic_open(out / "report.json", "w") as f:
         json.dump(report, f, indent=2, default=lambda v: None)
         f.write("\n")

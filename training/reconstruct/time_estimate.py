@@ -5,8 +5,8 @@ preset's densification schedule.
 A step costs ``t = t_now + per_gaussian * (N - N_now)``: what the latest steps took, plus what each Gaussian that
 densification adds costs per step (projection, SH, sorting, the regularizers, the gradient, Adam's update, the
 finiteness checks). The pixel work is taken to stay as it is: densification splits large Gaussians into smaller
-ones, so the Gaussian-tile pairs a step composites do not grow with N (fox, quick: 220k at step 800 with 7.8k
-Gaussians, 140k-180k from step 1700 to the end with 29k-59k; docs/reconstruction.md).
+ones, so the Gaussian-tile pairs a step composites do not grow with N (fox, quick: 254k over steps 701-800 with
+6.5k Gaussians, 147k-193k from step 1400 to the end with 21k-59k; docs/reconstruction.md).
 
 - ``per_gaussian`` is measured, at the first estimate, by ``probe_per_gaussian``: a few training steps'
   work (render, loss, backward, Adam) on the model as it is, and on the same model with as many small Gaussians
