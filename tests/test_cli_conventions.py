@@ -57,11 +57,13 @@ def test_help_says_which_run_flags_apply(command, bad, capsys):
         main([command, "--help"])
     text = " ".join(capsys.readouterr().out.split())
     assert "run options:" in text and "--no-progress" in text and "--debug" in text
-    takes_resume = "and --resume" in text
-    assert takes_resume == ("--resume " in text.split("run options:")[1].split("takes", 1)[1])
-    if takes_resume:
-        assert build_parser().parse_args(bad[command] + ["--resume"]).resume is True
-    else:
+    says_resume = "and --resume" in text
+    try:
+        takes_resume = build_parser().parse_args(bad[command] + ["--resume"]).resume is True
+    except SystemExit:  # argparse: unrecognized arguments
+        takes_resume = False
+    assert says_resume == takes_resume
+    if not takes_resume:
         assert "(no --resume:" in text  # and why
 
 

@@ -19,7 +19,7 @@ def add_run_flags(parser: argparse.ArgumentParser, *, progress: str = "no progre
     """Add the long commands' shared flags, in a group of their own: ``--no-progress`` (``progress`` says what it
     switches off), ``--debug`` and, when ``resume`` (its help) is given, ``--resume``; otherwise ``no_resume`` says
     in ``--help`` why a stopped run of this command is not continued. Returns the group."""
-    taken = "--no-progress, --debug" + (" and --resume" if resume else "")
+    taken = "--no-progress, --debug and --resume" if resume else "--no-progress and --debug"
     text = f"the flags the long commands ({', '.join(LONG_COMMANDS)}) share; this one takes {taken}"
     if not resume and no_resume:
         text += f" (no --resume: {no_resume})"
