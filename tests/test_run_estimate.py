@@ -69,7 +69,9 @@ def test_a_resumed_run_times_only_its_own_steps():
 
 
 def test_format_duration():
-    assert format_duration(30) == "30 s" and format_duration(600) == "10 min" and format_duration(7200) == "2.0 h"
+    assert format_duration(30) == "30 s" and format_duration(98) == "1 min 38 s" and format_duration(126.5) == \
+        "2 min 06 s"
+    assert format_duration(600) == "10 min" and format_duration(7200) == "2.0 h"
 
 
 def test_planned_gaussians_follow_the_schedule_to_the_cap():

@@ -55,6 +55,8 @@ def load_average() -> list[float] | None:
 def format_duration(seconds: float) -> str:
     if seconds < 90:
         return f"{seconds:.0f} s"
+    if seconds < 600:  # to the second: a 20 % revision of a short run must not read "2 min, was 2 min"
+        return f"{int(seconds // 60)} min {int(seconds % 60):02d} s"
     if seconds < 5400:
         return f"{seconds / 60:.0f} min"
     return f"{seconds / 3600:.1f} h"
