@@ -34,6 +34,9 @@ def build_parser() -> argparse.ArgumentParser:
         prog="splatstyler",
         description="Reconstruct a scene as 3D Gaussians from photos and stylize it after a painting.",
     )
+    from training.core.version import version
+
+    parser.add_argument("--version", action="version", version=f"splatstyler {version()}")
     parser.add_argument("--debug", action="store_true", help="show full tracebacks on errors")
     sub = parser.add_subparsers(dest="command", metavar="COMMAND")
     for name in COMMANDS:

@@ -63,3 +63,44 @@ class ProgressBar:
     def close(self) -> None:
         if self.bar is not None:
             self.bar.close()
+
+
+class CountBar:
+    """A bar over a count of finished items, told by ``update(done, total)`` (an eval grid's jobs), with lines
+    printed above it by ``write``. It shows no remaining time of its own: jobs differ too much in length for a rate,
+    and the caller's lines say the time left from what jobs of each kind took."""
+
+    def __init__(self, desc: str, unit: str, disable: bool = False):
+        self.desc, self.unit, self.disable = desc, unit, disable
+        self.bar = None
+
+    def update(self, done: int, total: int) -> None:
+        if self.disable:
+            return
+        if self.bar is None:
+            from tqdm import tqdm
+
+            self.bar = tqdm(total=total, desc=self.desc, unit=self.unit, dynamic_ncols=True,
+                            bar_format="{desc}: {n_fmt}/{total_fmt} " + self.unit + "s |{bar}| {elapsed}",
+                            **redraw_timing())
+        self.bar.total = total
+        self.bar.update(max(0, done - self.bar.n))
+
+    def write(self, line: str) -> None:
+        if self.bar is None:
+            print(line, flush=True)
+        else:
+            self.bar.write(line, file=sys.stdout)
+            sys.stdout.flush()
+
+    def close(self) -> None:
+        if self.bar is not None:
+            self.bar.close()
+
+
+def say_above_bars(line: str) -> None:
+    """Print a line on stderr without tearing a progress bar that is being drawn there."""
+    from tqdm import tqdm
+
+    tqdm.write(line, file=sys.stderr)
+    sys.stderr.flush()

@@ -119,11 +119,14 @@ def test_grid_runs_resumes_and_records_a_failed_cell(tmp_path, demo):
     ok_report = out / "cell" / "demo" / "ccft" / "strokes" / "seed0" / "report.json"
     before = ok_report.stat().st_mtime_ns
     (out / "jobs" / "cell" / "demo" / "nnfm" / "strokes" / "seed0.json").unlink()  # as if killed mid-cell
-    proc = run_eval(str(grid), "-o", str(out), "--workers", "1")
+    proc = run_eval(str(grid), "-o", str(out), "--workers", "1", "--resume")  # --resume: the same, said
     assert "2 jobs to run (2 already done)" in proc.stdout, proc.stdout
     assert ok_report.stat().st_mtime_ns == before
     nnfm = json.loads((out / "jobs" / "cell" / "demo" / "nnfm" / "strokes" / "seed0.json").read_text())
     assert nnfm["status"] == "ok"
+    from importlib.metadata import version
+
+    assert nnfm["splatstyler_version"] == version("splatstyler")
 
 
 @pytest.mark.slow

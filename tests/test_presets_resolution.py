@@ -10,7 +10,6 @@ import pytest
 from app.cli import main
 from assets.demo.scene import make_demo_scene, write_demo_scene
 from training.reconstruct.resolution import downscale_for_long_side, training_downscale
-from training.reconstruct.time_estimate import estimate_seconds, format_duration
 from training.reconstruct.trainer import ReconstructConfig
 
 
@@ -38,11 +37,6 @@ def test_no_max_side_keeps_the_given_factor():
     assert downscale_for_long_side(1920, None, 8) == 8
 
 
-def test_time_estimate_helpers():
-    assert estimate_seconds(0.1, 1000, growth=2.0) == pytest.approx(200.0)
-    assert format_duration(30) == "30 s" and format_duration(600) == "10 min" and format_duration(7200) == "2.0 h"
-
-
 @pytest.fixture(scope="module")
 def folder(tmp_path_factory):
     d = make_demo_scene(num_views=9, width=96, height=72, num_points=200)
@@ -59,7 +53,7 @@ def test_cli_max_side_and_downscale(folder, tmp_path, capsys):
     rc = main(["reconstruct", str(folder), "-o", str(tmp_path / "a"), "--iters", "12", "--no-progress",
                "--max-side", "50"])
     err = capsys.readouterr().err
-    assert rc == 0 and "training at 48x36 pixels (factor 2" in err and "estimated time: about" in err
+    assert rc == 0 and "training at 48x36 pixels (factor 2" in err and "estimated training time: about" in err
     report = json.loads((tmp_path / "a" / "report.json").read_text())
     cfg = report["settings"]["config"]
     assert (cfg["downscale"], cfg["max_side"]) == (2, 50) and report["settings"]["image_size"] == [48, 36]

@@ -13,6 +13,8 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
+from app.commands import add_run_flags
+
 CONTACT_SHEET = "contact_sheet.png"
 
 
@@ -35,6 +37,8 @@ def register(sub: argparse._SubParsersAction) -> None:
                    help="run in the console even when a display is present (no viewer window)")
     p.add_argument("--assets-only", action="store_true",
                    help="only generate the demo scene and painting (into OUT/assets) and stop")
+    add_run_flags(p, progress="no progress bars in the console (the viewer shows its own)",
+                  no_resume="a demo takes minutes; `reconstruct --resume` continues OUT/reconstruction")
     p.set_defaults(func=run)
 
 
@@ -45,12 +49,12 @@ def run(args: argparse.Namespace) -> int:
 
     out = Path(args.output)
     if args.assets_only:
-        assets = demo_assets(out / "assets", progress=True)
+        assets = demo_assets(out / "assets", progress=not args.no_progress)
         print(f"demo scene: {assets.scene_dir}\ndemo style: {assets.style_image}")
         return 0
     generated_scene = args.data is None
     if generated_scene or args.style is None:
-        assets = demo_assets(progress=True)
+        assets = demo_assets(progress=not args.no_progress)
     data = Path(args.data) if args.data else assets.scene_dir
     style = Path(args.style) if args.style else assets.style_image
     if args.style:
@@ -62,16 +66,17 @@ def run(args: argparse.Namespace) -> int:
         return _in_viewer(args, data, style, out, generated_scene)
 
     flags = ["--debug"] if getattr(args, "debug", False) else []
+    quiet = ["--no-progress"] if args.no_progress else []
     recon = out / "reconstruction"
     recon_iters = _recon_iters(args, generated_scene)
     steps = [
         ["reconstruct", str(data), "-o", str(recon), "--preset", "quick", "--backend", args.backend]
         + (["--iters", str(recon_iters)] if recon_iters else [])
         # the generated views are already CPU-sized (256x192); the quick preset's downscale is for photos
-        + (["--downscale", "1"] if generated_scene else []),
+        + (["--downscale", "1"] if generated_scene else []) + quiet,
         ["stylize", str(recon / "point_cloud.ply"), "--data", str(data), "--style", str(style),
          "-o", str(out / "stylized"), "--preset", "quick", "--loss", args.loss, "--backend", args.backend]
-        + (["--iters-per-view", str(args.iters_per_view)] if args.iters_per_view else []),
+        + (["--iters-per-view", str(args.iters_per_view)] if args.iters_per_view else []) + quiet,
         ["export", str(out / "stylized" / "point_cloud.ply"), "-o", str(out / "stylized" / "scene.splat")],
     ]
     for argv in steps:

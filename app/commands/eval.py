@@ -20,6 +20,8 @@ import fnmatch
 import os
 from pathlib import Path
 
+from app.commands import add_run_flags
+
 
 def register(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser("eval", help="run an evaluation grid (TOML): reconstruct, stylize, measure; tables and plots",
@@ -43,6 +45,9 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--cells-from", action="append", default=None, metavar="CSV",
                    help="an earlier report's results/cells.csv from a run of this grid file (another machine's OUT): "
                         "cells not finished here take their rows from it in the tables and plots; repeatable")
+    add_run_flags(p, progress="no progress bar over the jobs (their lines are still printed)",
+                  resume="continue the grid in OUT, as every run does (finished jobs are skipped), and fail when "
+                         "OUT holds no job of this grid: a mistyped OUT does not start the grid afresh")
     p.set_defaults(func=run)
 
 
@@ -73,6 +78,8 @@ def run(args: argparse.Namespace) -> int:
                 state = results.get(job.id, {}).get("status", "todo")
                 print(f"{state:7s} {job.id}")
         return 0
+    if args.resume and not load_results(out, grid):
+        raise InputError(out, "holds no recorded job of this grid for --resume to continue")
     earlier: dict = {}
     for csv_path in args.cells_from or []:
         from app.evaluate.report import read_cells_csv
@@ -84,7 +91,13 @@ def run(args: argparse.Namespace) -> int:
         pool = RayPool(args.ray, threads, num_cpus=cores) if args.ray else LocalPool(workers, threads)
         where = f"Ray ({args.ray})" if args.ray else f"{workers} local worker(s)"
         print(f"eval: {len(grid.cells)} cells on {where}, {threads} thread(s) each", flush=True)
-        results = run_grid(grid, out, pool, log=lambda line: print(line, flush=True), only=only)
+        from app.progress import CountBar
+
+        bar = CountBar("eval", "job", disable=args.no_progress)
+        try:
+            results = run_grid(grid, out, pool, log=bar.write, only=only, progress=bar.update)
+        finally:
+            bar.close()
     else:
         results = load_results(out, grid)
     md = write_report(grid, out, results, Path(args.report_dir) if args.report_dir else None, command=command,

@@ -4,7 +4,9 @@ Writes OUT/point_cloud.ply (standard 3DGS layout), OUT/report.json (metrics and 
 OUT/contact_sheet.png (each test view's photo beside its render, and the depth; training/reconstruct/results.py)
 and OUT/checkpoint.pt (every --checkpoint-every iterations, on Ctrl-C and at the end; ``--resume`` continues from
 it). The training resolution comes from the preset's target long side (training/reconstruct/resolution.py); a
-time estimate from the first timed steps is printed before the progress bar.
+time estimate is printed a tenth into the run, when the first large Gaussians have shrunk, and again whenever it
+moves by more than 20 % (training/reconstruct/time_estimate.py); report.json keeps the first one and the actual
+time.
 """
 
 from __future__ import annotations
@@ -12,6 +14,8 @@ from __future__ import annotations
 import argparse
 import sys
 from pathlib import Path
+
+from app.commands import add_run_flags
 
 PRESETS = ("quick", "standard", "paper")
 
@@ -55,16 +59,15 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--backend", choices=("auto", "cpu", "cuda", "torch"), default=None, help="rasterizer backend")
     p.add_argument("--background", choices=("black", "white", "random"), default=None,
                    help="background colour behind the Gaussians (default black)")
-    p.add_argument("--resume", action="store_true", help="continue from OUT/checkpoint.pt (its settings, "
-                                                         "with --iters allowed to extend the run); it must have "
-                                                         "been made from this DATA, else exit 2")
     p.add_argument("--force", action="store_true",
                    help="with --resume: when OUT/checkpoint.pt was made from other data, start afresh (replacing "
                         "it) instead of stopping")
     p.add_argument("--checkpoint-every", type=int, default=1000, metavar="N",
                    help="save OUT/checkpoint.pt every N iterations (0: only on Ctrl-C and at the end)")
     p.add_argument("--seed", type=int, default=None, help="random seed (default 0)")
-    p.add_argument("--no-progress", action="store_true", help="no progress bar")
+    add_run_flags(p, progress="no progress bar (the time estimates are still printed)",
+                  resume="continue from OUT/checkpoint.pt (its settings, with --iters allowed to extend the run); it must have "
+                         "been made from this DATA, else exit 2")
     p.set_defaults(func=run)
 
 
@@ -131,8 +134,8 @@ def run(args) -> int:
     from training.core.atomic_write import atomic_open
     from training.reconstruct.metrics import constant_color_psnr
     from training.reconstruct.resolution import training_downscale
-    from training.reconstruct.time_estimate import (TIMED_STEPS, estimate_seconds, format_duration,
-                                                      time_first_steps)
+    from training.core.run_estimate import RunEstimate, format_duration
+    from training.reconstruct.time_estimate import ReconstructSteps
     from training.core.atomic_write import check_output_dir, make_output_dir
     from training.scene.fingerprint import InputsChanged, check_same_inputs, dataset_fingerprint, make_fingerprint
 
@@ -201,19 +204,14 @@ def run(args) -> int:
         s["fingerprint"] = fingerprint
         save_checkpoint(ckpt_path, s)
 
-    from app.progress import ProgressBar
+    from app.progress import ProgressBar, say_above_bars
 
+    # said a tenth into the run, again when densification or other jobs move it by more than 20 %
+    estimate = RunEstimate(ReconstructSteps(trainer), say=say_above_bars, what="training")
+    trainer.add_listener(estimate)
     t_start = time.perf_counter()
+    estimate.begin(trainer.step_count)
     try:
-        start_step = trainer.step_count
-        per_step = time_first_steps(trainer)
-        if per_step > 0:
-            estimate = estimate_seconds(per_step, trainer.total_iters - trainer.step_count)
-            report_extra["estimated_seconds"] = (time.perf_counter() - t_start) + estimate
-            print(f"estimated time: about {format_duration(report_extra['estimated_seconds'])} on this machine for "
-                  f"{trainer.total_iters - start_step} iterations (from {TIMED_STEPS} timed steps at "
-                  f"{1000 * per_step:.0f} ms each; other jobs on the machine make it longer)",
-                  file=sys.stderr, flush=True)
         bar = ProgressBar(initial=trainer.step_count, desc="reconstruct", disable=args.no_progress,
                           postfix={"loss": "loss", "psnr": "psnr", "num_gaussians": "n"})
         trainer.add_listener(bar)
@@ -233,6 +231,10 @@ def run(args) -> int:
     bar.close()
     seconds = elapsed + (time.perf_counter() - t_start)
     checkpoint()
+    timing = estimate.record()
+    if timing["first_estimate_s"] is not None:
+        report_extra["estimated_seconds"] = timing["first_estimate_s"]  # this session's, as printed first
+    report_extra["time_estimate"] = timing
 
     model = trainer.export_gaussians()
     write_ply(out / "point_cloud.ply", model)
@@ -240,7 +242,10 @@ def run(args) -> int:
     test = trainer.evaluate(scene.test_indices)
     views = _write_results(trainer, out, scene.test_indices or scene.train_indices)
     stats = scale_stats(model.scales / trainer.extent)
+    from training.core.version import version
+
     report = {
+        "splatstyler_version": version(),
         "train_psnr": train["psnr"], "train_ssim": train["ssim"],
         "test_psnr": test["psnr"], "test_ssim": test["ssim"],
         "test_lpips": views["lpips"] if scene.test_indices else None, "test_views": test["views"],

@@ -4,6 +4,8 @@ from __future__ import annotations
 
 import argparse
 
+from app.commands import add_run_flags
+
 
 def register(sub: argparse._SubParsersAction) -> None:
     from training.scene.sfm import CAMERA_MODELS, MIN_POINTS
@@ -36,6 +38,8 @@ def register(sub: argparse._SubParsersAction) -> None:
     parser.add_argument("--allow-partial", action="store_true",
                         help=f"keep a model that placed fewer than half the photos or has fewer than "
                              f"{MIN_POINTS} points (by default that is a failure: exit 1, nothing written)")
+    add_run_flags(parser, progress="no progress bars (staging the photos, registering them)",
+                  no_resume="a run builds in a work folder inside DATA and starts afresh")
     parser.set_defaults(func=run)
 
 
@@ -47,8 +51,8 @@ def run(args: argparse.Namespace) -> int:
     try:
         result = run_sfm(args.photos, args.output, max_size=args.max_size, max_features=args.max_features,
                          matcher=args.matcher, log=lambda line: print(line, flush=True),
-                         progress=sys.stderr.isatty(), verbose=args.verbose, camera_model=args.camera_model,
-                         refine_principal_point=args.refine_principal_point, allow_partial=args.allow_partial)
+                         progress=sys.stderr.isatty() and not args.no_progress, verbose=args.verbose,
+                         camera_model=args.camera_model, refine_principal_point=args.refine_principal_point, allow_partial=args.allow_partial)
     except SfmFailed as exc:
         print(summary_line(exc.result.report))
         _notes(exc.result)

@@ -21,6 +21,7 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
+from app.commands import add_run_flags
 from app.region_flags import add_region_flags, region_from_args
 from app.stylize_settings import config_from_args
 
@@ -90,12 +91,12 @@ def register(sub: argparse._SubParsersAction) -> None:
                         f"nearest path (default {METRIC_PAIRS})")
     p.add_argument("--no-metrics", action="store_true",
                    help="skip the report's consistency, style and content metrics (docs/evaluation.md)")
-    p.add_argument("--resume", action="store_true",
-                   help="continue the interrupted stylization in OUT (OUT/stylize_checkpoint.pt); it must have been "
-                        "made from these inputs and fixed settings, else exit 2")
     p.add_argument("--force", action="store_true",
                    help="with --resume: when the checkpoint was made from other inputs, start afresh instead of "
                         "stopping")
+    add_run_flags(p, progress="no progress bar (the time estimates are still printed)",
+                  resume="continue the interrupted stylization in OUT (OUT/stylize_checkpoint.pt); it must have been "
+                         "made from these inputs and fixed settings, else exit 2")
     p.set_defaults(func=run)
 
 
@@ -127,18 +128,27 @@ def run(args: argparse.Namespace) -> int:
     if args.metric_pairs < 1:
         raise InputError(None, f"--metric-pairs must be at least 1, got {args.metric_pairs}")
     mask = selection_from_args(args)
-    from app.progress import ProgressBar
+    from app.progress import ProgressBar, say_above_bars
+    from training.core.run_estimate import RunEstimate, UniformSteps
 
     t0 = time.perf_counter()
     bar = ProgressBar(desc="stylizing", postfix={"loss": "loss", "style_loss": "style",
-                                                    "trajectory_position": "view"})
+                                                    "trajectory_position": "view"}, disable=args.no_progress)
+    # the steps cost the same throughout (fixed Gaussians and render size): timed, and timed again as the run goes
+    estimate = RunEstimate(UniformSteps(), say=say_above_bars, what="stylization")
+
+    def listener(event) -> None:
+        bar(event)
+        estimate(event)
+
     try:
         report = stylize_to_folder(Path(args.model), Path(args.data), Path(args.style), Path(args.output), config,
-                                   vgg_weights=args.vgg_weights, listener=bar, mask=mask,
+                                   vgg_weights=args.vgg_weights, listener=listener, mask=mask,
                                    log=lambda line: print(line, flush=True),
                                    metrics=None if args.no_metrics else Measure(args.metric_pairs),
                                    resume=args.resume, force=args.force,
-                                   warn=lambda line: print(f"splatstyler: warning: {line}", file=sys.stderr))
+                                   warn=lambda line: print(f"splatstyler: warning: {line}", file=sys.stderr),
+                                   report_extra=lambda: {"time_estimate": estimate.record()})
     finally:
         bar.close()
     print(f"stylized {report['num_views']} views in {report['iterations']} iterations "

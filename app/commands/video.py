@@ -14,6 +14,8 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
+from app.commands import add_run_flags
+
 DEFAULT_SIZE = (960, 540)
 
 
@@ -48,6 +50,8 @@ def register(sub: argparse._SubParsersAction) -> None:
                         help="also write the camera path used (e.g. an orbit, to edit in the viewer)")
     parser.add_argument("-o", "--output", type=Path, required=True, metavar="OUT",
                         help="OUT.mp4, or a folder for PNG frames (frame_00000.png, ...)")
+    add_run_flags(parser, no_resume="frames render in milliseconds; a stopped MP4 is not kept, a PNG folder keeps "
+                                    "its finished frames")
     parser.set_defaults(func=run)
 
 
@@ -130,7 +134,8 @@ def run(args: argparse.Namespace) -> int:
 
     from app.progress import redraw_timing
 
-    bar = tqdm(total=len(cameras), desc="video", unit="frame", dynamic_ncols=True, **redraw_timing())
+    bar = tqdm(total=len(cameras), desc="video", unit="frame", dynamic_ncols=True, disable=args.no_progress,
+               **redraw_timing())
     try:
         if other is not None:  # the divider shows slot 0 left: the original (before) there, MODEL (after) right
             renderer.set_splats(*other[:5], other[5], slot=0)

@@ -41,9 +41,12 @@ def run_baseline_cell(model: Path, data: Path, painting: Path, out: Path, flags:
         name = f"{pos:03d}_{Path(cam.name).stem}.png"
         write_image(out / "renders" / name, img)
         names.append(name)
-    report = {"method": "2d", "model": str(model), "data": str(data), "style": str(painting),
-              "config": stylizer.config_dict(), "num_views": len(stylizer.cameras), "renders": names,
-              "metrics": metrics, "metrics_version": METRICS_VERSION, "time_s": {"total": time.perf_counter() - t0}}
+    from training.core.version import version
+
+    report = {"splatstyler_version": version(), "method": "2d", "model": str(model), "data": str(data),
+              "style": str(painting), "config": stylizer.config_dict(), "num_views": len(stylizer.cameras),
+              "renders": names, "metrics": metrics, "metrics_version": METRICS_VERSION,
+              "time_s": {"total": time.perf_counter() - t0}}
     with atomic_open(out / "report.json", "w") as f:
         json.dump(report, f, indent=2, default=lambda v: None)
         f.write("\n")

@@ -29,6 +29,7 @@ from app.evaluate.jobs import run_job
 from training.evaluate.measure import METRICS_VERSION
 from training.core.atomic_write import atomic_open
 from training.core.errors import InputError
+from training.core.version import version
 
 
 def result_path(out: Path, job: Job | str) -> Path:
@@ -80,7 +81,7 @@ def why_not_done(result: dict[str, Any] | None, job: Job) -> str | None:
 
 
 def _record(out: Path, job: Job, result: dict[str, Any]) -> None:
-    result = {"job": asdict(job), **result}
+    result = {"job": asdict(job), "splatstyler_version": version(), **result}
     with atomic_open(result_path(out, job), "w") as f:
         json.dump(result, f, indent=2, default=str)
         f.write("\n")
@@ -211,9 +212,10 @@ def _to_run(jobs: list[Job], results: dict[str, dict[str, Any]], log: Callable[[
 
 
 def run_grid(grid: Grid, out: Path, pool, log: Callable[[str], None] = print,
-             only: Callable[[Job], bool] | None = None) -> dict[str, dict[str, Any]]:
+             only: Callable[[Job], bool] | None = None,
+             progress: Callable[[int, int], None] | None = None) -> dict[str, dict[str, Any]]:
     """Run every job of ``grid`` without an "ok" record (those ``only`` accepts, and what they need) on ``pool``;
-    returns all results by job id."""
+    returns all results by job id. ``progress(finished, to_run)`` is called as jobs finish (and once at the start)."""
     out = Path(out)
     results = load_results(out, grid)
     jobs = with_inputs(grid)
@@ -234,6 +236,8 @@ def run_grid(grid: Grid, out: Path, pool, log: Callable[[str], None] = print,
     todo_ids, finished_ids = {j.id for j in todo}, set()
     finished = 0
     t0 = time.perf_counter()
+    if progress is not None:
+        progress(0, len(todo))
     try:
         while pending or running:
             for job in list(pending):
@@ -247,6 +251,8 @@ def run_grid(grid: Grid, out: Path, pool, log: Callable[[str], None] = print,
                     pending.remove(job)
                     finished += 1
                     log(f"[{finished}/{len(todo)}] {job.id}: skipped ({failed_dep} failed)")
+                    if progress is not None:
+                        progress(finished, len(todo))
                 elif all(s == "ok" for s in states) and len(running) < pool.capacity:
                     # no queue beyond the free workers: the next free worker takes the first ready job in the
                     # grid's order, so the settings listed first finish first
@@ -265,6 +271,8 @@ def run_grid(grid: Grid, out: Path, pool, log: Callable[[str], None] = print,
                 left = time_left(results, by_id, pending + list(running.values()), pool.capacity)
                 eta = "" if left is None or not (pending or running) else f"; about {left / 60:.0f} min left"
                 log(f"[{finished}/{len(todo)}] {job.id}: {what} ({(time.perf_counter() - t0) / 60:.1f} min{eta})")
+                if progress is not None:
+                    progress(finished, len(todo))
     except KeyboardInterrupt:
         pool.close(cancel=True)
         log("eval: interrupted; finished jobs are recorded, run the same command again to continue")

@@ -35,6 +35,7 @@ from typing import Callable
 
 from training.core.atomic_write import atomic_open
 from training.core.errors import InputError
+from training.core.version import version
 from training.scene.image_io import is_image_file, read_header, read_image_with_alpha, resize_image, write_image
 
 # Exhaustive matching compares every pair: measured 47 s for 20 photos at 640x480 on 2 cores (190 pairs), so 50
@@ -237,7 +238,7 @@ def run_sfm(photos_dir: str | Path, output: str | Path, max_size: int = 1600, ma
         if unregistered:
             log(f"      {len(unregistered)} photos overlap others but could not be placed: "
                 f"{name_list(unregistered)}")
-        report = quality_summary(reconstruction, len(photos))
+        report = {"splatstyler_version": version(), **quality_summary(reconstruction, len(photos))}
         result = SfmResult(output, len(photos), reconstruction.num_reg_images(), reconstruction.num_points3D(),
                            matcher, seconds, mapping, unregistered, no_overlap, report)
         too_few_photos = 2 * result.num_registered < result.num_photos

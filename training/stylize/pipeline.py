@@ -17,6 +17,7 @@ from typing import Any, Callable
 import numpy as np
 
 from training.core.errors import InputError
+from training.core.version import version
 from training.stylize.trainer import StylizeConfig, Stylizer
 
 SHEET_VIEWS = 4
@@ -38,12 +39,14 @@ def choose_downscale(data: Path, max_side: int) -> int:
 def stylize_to_folder(model: Path, data: Path, style: Path, out: Path, config: StylizeConfig,
                       vgg_weights: str | None = None, listener=None, log=None, mask=None,
                       metrics: Callable[[Stylizer], dict[str, Any]] | None = None, resume: bool = False,
-                      force: bool = False, warn: Callable[[str], None] | None = None) -> dict[str, Any]:
+                      force: bool = False, warn: Callable[[str], None] | None = None,
+                      report_extra: Callable[[], dict[str, Any]] | None = None) -> dict[str, Any]:
     """Run the job and return the report (also written to OUT/report.json). ``listener`` receives the stylizer's
     events (training/core/messages.py); ``log`` (a str -> None callable) gets one line describing the run, and
     ``warn`` the warnings (default: ``warnings.warn``). ``mask``: (N,) bool, stylize only those Gaussians (Stylizer's
     ``mask``). ``metrics(stylizer)``, called once the stylization has finished, gives the report's "metrics" (the
-    CLI passes training/evaluate's measures, which sit above this package).
+    CLI passes training/evaluate's measures, which sit above this package); ``report_extra()``, called as the report
+    is written, adds its entries (the CLI's time estimate).
 
     The work is kept as it is made: an interrupt (KeyboardInterrupt: Ctrl-C, SIGTERM) after the first step saves
     OUT/point_cloud.ply and OUT/stylize_checkpoint.pt before it goes on up; once the iterations and the post
@@ -173,6 +176,7 @@ def stylize_to_folder(model: Path, data: Path, style: Path, out: Path, config: S
 
     last = stylizer.history[-1] if stylizer.history else None
     report: dict[str, Any] = {
+        "splatstyler_version": version(),
         "model": str(model), "data": str(data), "style": str(style), "output": str(out),
         "config": stylizer.config_dict(),
         "scene_kind": stylizer.kind,
@@ -213,6 +217,8 @@ def stylize_to_folder(model: Path, data: Path, style: Path, out: Path, config: S
         "fingerprint": fingerprint,
         "resumed_at_iteration": None if state is None else start_iteration,
     }
+    if report_extra is not None:
+        report.update(report_extra())
     with atomic_open(out / "report.json", "w") as f:
         json.dump(_jsonable(report), f, indent=2)
         f.write("\n")
