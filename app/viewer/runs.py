@@ -180,3 +180,25 @@ def current_view_index(session) -> int | None:
     if session.status().stage == "stylize" and trainer is not None and hasattr(trainer, "trajectory_position"):
         return trainer.trajectory_position
     return None
+
+
+def current_camera_index(session) -> int | None:
+    """The dataset camera the stylizer optimises now (None when none runs or the view is a virtual one)."""
+    position = current_view_index(session)
+    if position is None:
+        return None
+    item = session.trainer.trajectory[position]
+    return None if item.is_virtual else item.source_index
+
+
+def stylize_progress(session) -> str:
+    """"pass p of P, view v" while a stylization runs (v: the trajectory position the View order panel numbers,
+    the view the next step optimises; under the interleaved schedule it moves at every step), else "". Read from
+    the UI thread every frame: the trainer's step count and position are plain integers it sets between steps."""
+    trainer = session.trainer
+    if not session.running or session.status().stage != "stylize" or not hasattr(trainer, "pass_progress"):
+        return ""
+    position = trainer.trajectory_position
+    done, passes = trainer.pass_progress()
+    virtual = " (virtual)" if trainer.trajectory[position].is_virtual else ""
+    return f"pass {done} of {passes}, view {position}{virtual}"

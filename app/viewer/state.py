@@ -223,6 +223,13 @@ class WindowState:
     messages_seen: int = 0
     model_info: dict = field(default_factory=dict)  # the shown model: count, SH degree, bounds
     software_gl: bool = False  # the GL context draws on the CPU
+    help_rect: tuple[int, int, int, int] | None = None  # the keys overlay on screen, while shown
+    # a stylization brings the Style tab forward: "" (nothing to do) | wanted | asked (in front from the next frame)
+    # | shown (in front; a tab the user picks from now on wins); style_covers: the tab to bring back at the end
+    style_tab: str = ""
+    style_covers: str = ""
+    style_settings_h: float = 0.0  # the Style panel's height below the painting, last frame (the painting yields)
+    fixed_folded: bool = False  # the Style panel's "Fixed at the start" was last folded for a run (opened after)
 
 
 @dataclass
