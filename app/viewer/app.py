@@ -42,7 +42,7 @@ PATH_LINE_POINTS = 512  # the camera path drawn in the view: this many points at
 class ViewerApp:
     def __init__(self, paths: Paths | None = None, start: str | None = None, preset: str = "quick",
                  recon_iters: int | None = None, stylize_overrides: dict | None = None,
-                 downscale: int | None = None, project: str | None = None):
+                 downscale: int | None = None, project: str | None = None, outputs=None):
         from training.stylize.trainer import StylizeConfig
 
         self.session = LiveSession()
@@ -53,7 +53,8 @@ class ViewerApp:
         ui.export.path = str(out / "export.ply")
         ui.video.file, ui.video.video = str(out / "camera_path.json"), str(out / "path.mp4")
         ui.training = TrainingState(preset=preset, recon_iters=recon_iters, downscale=downscale,
-                                    stylize=StylizeConfig(preset="quick", **(stylize_overrides or {})))
+                                    stylize=StylizeConfig(preset="quick", **(stylize_overrides or {})),
+                                    outputs=outputs)
         ui.project.path = project or ""
         self.ctx = None
         self.frames = 0
@@ -224,6 +225,8 @@ class ViewerApp:
                     self.update_overlays()
                 elif item.kind == "error":
                     ui.messages.fail(item.text)
+                elif item.kind == "info":
+                    ui.messages.say(item.text)
                 elif item.kind == "saved":
                     runs.record_saved(doc, ui, item.stage, item.text)
                 elif item.kind == "state":

@@ -174,6 +174,9 @@ class TrainingState:
     shown_step: int | None = None  # the trainer step whose model the view shows
     before: Any = None  # the model before stylization (ModelSnapshot): the split view's left side
     order_preview: list | None = None  # (camera index, centre, is_virtual) the next stylization would follow
+    # what a finished run writes besides its model (the demo's window: what the headless demo writes): an object
+    # with .reconstruction and .stylization, each a Stage.outputs (session.py); None: the model alone
+    outputs: Any = None
 
 
 @dataclass
