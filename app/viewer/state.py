@@ -223,6 +223,7 @@ class WindowState:
     photo_index: int = 0
     painting_rect: tuple[int, int, int, int] | None = None
     drawn_order: list[int] = field(default_factory=list)  # the View order panel's cameras, as drawn
+    order_points: list = field(default_factory=list)  # (x, y) on screen of each trajectory position, as drawn
     messages_seen: int = 0
     model_info: dict = field(default_factory=dict)  # the shown model: count, SH degree, bounds
     software_gl: bool = False  # the GL context draws on the CPU

@@ -52,6 +52,7 @@ def view_order_panel(doc, session, ui) -> None:
         if d[pos] < 15:
             ui.requests.camera = items[pos][0]
     ui.window.drawn_order = [source for source, _, virtual in items if not virtual]
+    ui.window.order_points = pts  # where each trajectory position is drawn (tests look for the marks there)
     where = stylize_progress(session)
     imgui.text(f"{len(items)} views in order" + (f"; {where}" if where else "") + "; click a camera to go there")
 
