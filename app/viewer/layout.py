@@ -39,7 +39,8 @@ def layout_file() -> Path:
 def docking_splits() -> list:
     split = hello_imgui.DockingSplit
     return [split(MAIN, LEFT, imgui.Dir.left, 0.25), split(MAIN, RIGHT, imgui.Dir.right, 0.31),
-            split(LEFT, LEFT_BOTTOM, imgui.Dir.down, 0.25), split(RIGHT, RIGHT_BOTTOM, imgui.Dir.down, 0.36)]
+            # the View order panel's plot reads well small; the Style panel above it holds the painting and sliders
+            split(LEFT, LEFT_BOTTOM, imgui.Dir.down, 0.25), split(RIGHT, RIGHT_BOTTOM, imgui.Dir.down, 0.28)]
 
 
 def dockable_windows(doc, session, ui) -> list:

@@ -84,8 +84,7 @@ def style_panel(doc, session, ui) -> None:
     if live and trainer is not None:
         u = trainer.utilisation()
         if u:
-            imgui.separator_text("Style use (last plan)")
-            imgui.text(f"utilisation {u.get('utilisation', float('nan')):.3f}   "
+            imgui.text(f"last plan: utilisation {u.get('utilisation', float('nan')):.3f}, "
                        f"column entropy {u.get('column_entropy', float('nan')):.3f}")
     ui.window.style_settings_h = imgui.get_cursor_pos_y() - below_painting  # the painting leaves them room
 
@@ -138,6 +137,7 @@ def painting(doc, session, ui) -> float:
             tex.painting.release()
         rgba = np.concatenate([img, np.ones(img.shape[:2] + (1,), np.float32)], axis=2)
         tex.painting = ctx.texture((img.shape[1], img.shape[0]), 4, np.ascontiguousarray(rgba).tobytes(), dtype="f4")
+        tex.painting.build_mipmaps()  # shown smaller than it is (it yields to the settings): filtered, not aliased
         tex.painting_of = img
     avail = imgui.get_content_region_avail()
     room = max(avail.y - ui.window.style_settings_h, MIN_PAINTING_LINES * imgui.get_text_line_height_with_spacing())
@@ -151,6 +151,8 @@ def painting(doc, session, ui) -> float:
     trainer = session.trainer
     capacity = trainer.capacity_map() if trainer is not None and hasattr(trainer, "capacity_map") else None
     changed, ui.window.show_capacity = imgui.checkbox("capacity map", ui.window.show_capacity)
+    imgui.set_item_tooltip("the column mass of the last transport plan at each style feature's place: red to yellow "
+                           "where a pattern gets more than its fair share, blue where it gets less")
     if capacity is not None and ui.window.show_capacity:
         heat = heatmap(capacity)
         if tex.capacity is None or tex.capacity.size != (heat.shape[1], heat.shape[0]):
@@ -160,7 +162,8 @@ def painting(doc, session, ui) -> float:
         tex.capacity.write(np.ascontiguousarray(heat).tobytes())
         imgui.get_window_draw_list().add_image(imgui.ImTextureRef(tex.capacity.glo), pos,
                                                imgui.ImVec2(pos.x + size.x, pos.y + size.y))
-        imgui.text(f"capacity: {capacity.shape[1]}x{capacity.shape[0]} style features, "
+        imgui.same_line()  # one line with the checkbox: the height goes to the painting
+        imgui.text(f"{capacity.shape[1]}x{capacity.shape[0]} style features, "
                    f"max {capacity.max() * capacity.size:.1f}x the fair share")
     return below
 
