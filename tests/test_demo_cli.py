@@ -55,6 +55,50 @@ def test_demo_runs_end_to_end(tmp_path):
     assert styled["metrics"]["consistency_short_pairs"] > 0
 
 
+@pytest.mark.slow
+def test_demo_in_a_window_writes_each_stage_as_it_ends_and_keeps_what_it_has_on_sigterm(tmp_path):
+    """`splatstyler demo` with a display (DISPLAY set, the window on GLFW's null platform): the reconstruction's
+    report.json, renders and contact sheet are written as it ends, with the window open; SIGTERM during the
+    stylization keeps the model so far and its checkpoint, and the demo's contact sheet is made of what there is
+    (exit 143). (The finished stylization's outputs: tests/test_viewer_gui.py.)"""
+    import os
+    import signal
+    import time
+
+    out, log = tmp_path / "demo", tmp_path / "demo.log"
+    env = dict(os.environ, DISPLAY=":99", SPLATSTYLER_VIEWER_PLATFORM="null",
+               XDG_CONFIG_HOME=str(tmp_path / "config"))
+    with open(log, "w") as f:
+        proc = subprocess.Popen([sys.executable, "-m", "app", "demo", "-o", str(out), "--recon-iters", "10",
+                                 "--iters-per-view", "50"], stdout=f, stderr=subprocess.STDOUT, env=env)
+    try:
+        t0 = time.time()
+        # the stylizer is being built once its VGG weights are named (training/stylize/vgg_weights.py)
+        while "VGG-16" not in log.read_text():
+            assert proc.poll() is None, log.read_text()[-3000:]
+            assert time.time() - t0 < 900, "the stylization did not begin"
+            time.sleep(0.5)
+        written_while_open = sorted(p.name for p in (out / "reconstruction").iterdir())
+        time.sleep(2.0)
+        proc.send_signal(signal.SIGTERM)
+        code = proc.wait(600)
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+    text = log.read_text()
+    assert code == 143, text[-3000:]
+    for name in ("report.json", "renders", "contact_sheet.png", "point_cloud.ply", "checkpoint.pt"):
+        assert name in written_while_open, (name, written_while_open)
+    recon = json.loads((out / "reconstruction" / "report.json").read_text())
+    assert recon["iterations"] == 10 and np.isfinite(recon["test_psnr"]) and "initial_psnr" in recon
+    assert (out / "stylized" / "point_cloud.ply").exists() and (out / "stylized" / "stylize_checkpoint.pt").exists()
+    from training.scene.image_io import read_image
+
+    sheet = read_image(out / "contact_sheet.png")
+    assert sheet.shape[1] > 3 * 256 and sheet.std() > 0.05
+    assert "contact sheet (photo, reconstruction, stylized so far, painting)" in text
+
+
 def test_demo_bad_style_is_one_line(tmp_path):
     bad = tmp_path / "painting.png"
     bad.write_bytes(b"not an image")

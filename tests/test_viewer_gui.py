@@ -427,3 +427,80 @@ Path(os.environ["RESULT"]).write_text(json.dumps(found))
     a, b = np.load(tmp_path / "view_a.npy"), np.load(tmp_path / "view_b.npy")
     assert a.shape == b.shape and float(a.std()) > 5
     assert np.array_equal(a, b)
+
+
+def test_a_stylization_brings_its_tab_forward_says_its_pass_and_writes_the_demo_outputs_while_open(demo_scene,
+                                                                                                      tmp_path):
+    """Stylize pressed in the Training tab: the Style tab (painting, capacity map, sliders) comes in front by itself
+    and the Training tab comes back when the run ends; while it runs both panels' line says "pass p of P, view v",
+    v moving at every step (the interleaved schedule) with the View order panel's red mark; with the demo's window
+    outputs (app/commands/demo.py) the finished run writes what the headless demo writes (report.json, renders,
+    .splat, contact sheet) while the window stays open, and says so in the Messages panel."""
+    scene_dir, style, model = demo_scene
+    found = run_gui(PRELUDE + f"""
+from app.commands.demo import WindowOutputs
+from app.viewer.layout import front_tab
+from app.viewer.runs import current_view_index, stylize_progress
+outputs = WindowOutputs(Path({str(scene_dir)!r}), Path({str(style)!r}), OUT / "out")
+app = ViewerApp(Paths(model={str(model)!r}, data={str(scene_dir)!r}, style={str(style)!r}, out=str(OUT / "out")),
+                stylize_overrides={{"max_side": 48, "iters_per_view": 2}}, outputs=outputs)
+
+def test(ctx):
+    settle(ctx, 0.5)
+    found["front_before"] = front_tab("Style")
+    open_window(ctx, "Training")
+    ctx.item_click("Stylize")
+    wait(ctx, lambda: app.session.status().state == "running", 180, "the stylizer to run")
+    app.session.pause()
+    wait(ctx, lambda: app.session.status().state == "paused", 60, "the pause")
+    ctx.yield_(3)
+    found["front_during"] = front_tab("Style")
+    trainer = app.session.trainer
+    steps = []
+    for _ in range(3):  # one step at a time (the Step button's command): the line and the red mark follow each
+        ctx.yield_(2)
+        steps.append([trainer.iteration, trainer.trajectory_position, stylize_progress(app.session),
+                      current_view_index(app.session)])
+        app.session.single_step()
+        wait(ctx, lambda: trainer.iteration == steps[-1][0] + 1, 60, "one step")
+    found["steps"] = steps
+    found["views"], found["passes"] = len(trainer.trajectory), trainer.pass_progress()[1]
+    app.session.resume()
+    wait(ctx, lambda: (OUT / "out" / "contact_sheet.png").exists(), 400, "the demo's contact sheet")
+    frames = app.frames
+    settle(ctx, 0.5)
+    found["frames_after_outputs"] = app.frames - frames  # the window is open and drawing
+    wait(ctx, lambda: app.session.status().state == "finished", 60, "the end of the run")
+    settle(ctx, 0.5)
+    found["front_after"] = front_tab("Style")
+
+run(app, test)
+found["messages"] = list(app.ui.messages.lines)
+found["error"] = app.ui.messages.error
+Path(os.environ["RESULT"]).write_text(json.dumps(found))
+""", tmp_path, timeout=600)
+    import json
+
+    from training.model.ply_io import read_ply
+    from training.model.splat_io import read_splat
+
+    assert found["error"] == "", found["error"]
+    assert found["front_before"] == "Training" and found["front_during"] == "Style"
+    assert found["front_after"] == "Training"
+    n, passes = found["views"], found["passes"]
+    for iteration, position, line, marked in found["steps"]:
+        assert position == iteration % n and marked == position  # a new view at every step, marked red
+        assert line == f"pass {iteration // n + 1} of {passes}, view {position}"
+    assert passes == 2 and len({s[1] for s in found["steps"]}) == 3
+    assert found["frames_after_outputs"] > 0
+    out = tmp_path / "out"
+    styled = out / "stylized"
+    report = json.loads((styled / "report.json").read_text())
+    assert report["iterations"] == 2 * n and report["metrics"]["consistency_short_pairs"] > 0
+    assert len(list((styled / "renders").glob("*.png"))) == n and (styled / "before_after.png").exists()
+    assert len(read_splat(styled / "scene.splat")) == len(read_ply(styled / "point_cloud.ply"))
+    assert not (styled / "stylize_checkpoint.pt").exists()  # the report is whole: nothing left to resume
+    check_screenshot(out / "contact_sheet.png")
+    lines = found["messages"]
+    assert any(line.startswith("style distance (SWD)") for line in lines)  # the verdict, in the window
+    assert any(line.startswith("contact sheet") for line in lines)

@@ -57,6 +57,22 @@ def test_the_viewer_session_comes_back_from_a_project(tmp_path):
     assert np.array_equal(path.keyframes[0].world_to_camera, m)
 
 
+def test_the_stylization_schedule_round_trips_through_a_project(tmp_path):
+    """The schedule (issue 28: interleaved, the default, or block) is a stylization setting like the others: File >
+    Save writes it in the project's stylize settings and File > Open gives it back to the Style panel."""
+    write_model(tmp_path / "m.ply")
+    for schedule in ("block", "interleaved"):
+        app = ViewerApp(Paths(out=str(tmp_path / "out")), stylize_overrides={"schedule": schedule})
+        open_model(app.document, app.session, app.ui, str(tmp_path / "m.ply"))
+        saved = save_session(app.document, app.session, app.ui, str(tmp_path / f"{schedule}.splatproj"),
+                             layout="")
+        again = ViewerApp(Paths(out=str(tmp_path / "out2")), stylize_overrides={"schedule": "interleaved"
+                                                                               if schedule == "block" else "block"})
+        open_project(again.document, again.session, again.ui, str(saved))
+        assert again.document.from_project(saved, tmp_path / "out2").project.stylize["schedule"] == schedule
+        assert again.ui.training.stylize.schedule == schedule and again.ui.messages.error == ""
+
+
 def test_the_view_camera_round_trips_through_a_keyframe():
     cam = ViewerCamera.looking_at([1.0, -2.0, -4.0], [0.0, 0.0, 0.0], up=(0.0, -1.0, 0.0), fov_y_degrees=42.0)
     key = keyframe_from(cam.camera(800, 600))

@@ -22,7 +22,7 @@ from app.viewer.camera_control import ViewerCamera, camera_span
 from app.viewer.colour_view import displayed
 from app.viewer.document import Document
 from app.viewer.gizmo import gizmo_keys, sync_crop_box
-from app.viewer.layout import configure, help_overlay
+from app.viewer.layout import configure, help_overlay, quit_app, style_back, style_forward, watch_style_tab
 from app.viewer.path_video import step_video
 from app.viewer.platform import choose_platform, prepare_glfw
 from app.viewer.session import LiveSession, SessionMessage
@@ -42,7 +42,7 @@ PATH_LINE_POINTS = 512  # the camera path drawn in the view: this many points at
 class ViewerApp:
     def __init__(self, paths: Paths | None = None, start: str | None = None, preset: str = "quick",
                  recon_iters: int | None = None, stylize_overrides: dict | None = None,
-                 downscale: int | None = None, project: str | None = None):
+                 downscale: int | None = None, project: str | None = None, outputs=None):
         from training.stylize.trainer import StylizeConfig
 
         self.session = LiveSession()
@@ -53,7 +53,8 @@ class ViewerApp:
         ui.export.path = str(out / "export.ply")
         ui.video.file, ui.video.video = str(out / "camera_path.json"), str(out / "path.mp4")
         ui.training = TrainingState(preset=preset, recon_iters=recon_iters, downscale=downscale,
-                                    stylize=StylizeConfig(preset="quick", **(stylize_overrides or {})))
+                                    stylize=StylizeConfig(preset="quick", **(stylize_overrides or {})),
+                                    outputs=outputs)
         ui.project.path = project or ""
         self.ctx = None
         self.frames = 0
@@ -66,6 +67,7 @@ class ViewerApp:
         self._active_at = 0.0
         self._frame_start = 0.0
         self._frustums_hidden: frozenset[int] = frozenset()
+        self._overlays_stale = False  # the stylizer changed view since the overlays were built
 
     @property
     def view(self) -> View3D | None:
@@ -176,7 +178,9 @@ class ViewerApp:
         return frozenset(np.nonzero(d <= 2 * FRUSTUM_SIZE * camera_span(cams))[0].tolist())
 
     def update_overlays(self) -> None:
-        """Frustums of the dataset cameras, the stylization's path through them, and the video's camera path."""
+        """Frustums of the dataset cameras (the one being stylized red), the stylization's path through them, and
+        the video's camera path."""
+        self._overlays_stale = False
         if self.view is None:
             return
         from renderer_gl import Lines, frustums, polyline
@@ -186,7 +190,7 @@ class ViewerApp:
         if cams:
             size = FRUSTUM_SIZE * camera_span(cams)
             if self.view.settings.show_frustums:
-                current = runs.current_view_index(self.session)
+                current = runs.current_camera_index(self.session)
                 self._frustums_hidden = self._cameras_at_view()
                 shown = [i for i in range(len(cams)) if i not in self._frustums_hidden]
                 colors = [(1.0, 0.25, 0.2, 1.0) if i == current else (0.95, 0.8, 0.2, 0.8) for i in shown]
@@ -216,23 +220,34 @@ class ViewerApp:
                     if item.text == "stylize" and ui.training.before is None:
                         trainer = session.trainer
                         ui.training.before = trainer.snapshot() if trainer is not None else doc.model
+                    if item.text == "stylize":
+                        style_forward(ui)  # the painting and its capacity map are what a stylization changes
                     self.update_overlays()
                 elif item.kind == "error":
                     ui.messages.fail(item.text)
+                elif item.kind == "info":
+                    ui.messages.say(item.text)
                 elif item.kind == "saved":
                     runs.record_saved(doc, ui, item.stage, item.text)
                 elif item.kind == "state":
                     view.dirty |= item.text in ("paused", "finished", "stopped")
                     self._last_snapshot_at = 0.0  # a pause or the end: show the model as it is now
+                    if item.stage == "stylize" and item.text in ("finished", "stopped", "error"):
+                        style_back(ui)
             elif isinstance(item, TrainerEvent):
                 if item.kind == "view":
-                    self.update_overlays()
+                    self._overlays_stale = True
                 elif item.kind == "warning":
                     ui.messages.say(f"warning: {item.message}")
         runs.finish_pending(ui)
+        watch_style_tab(ui)
         if doc.cameras and view.settings.show_frustums and self._cameras_at_view() != self._frustums_hidden:
             self.update_overlays()  # the view came near cameras, or left them
         self._take_snapshot()
+        if self._overlays_stale and (view.dirty or not self.training_now()):
+            # the stylizer moved to another view (under the interleaved schedule at every step): its red frustum
+            # moves when the view draws anyway (the next model refresh), not in a splat draw of its own per step
+            self.update_overlays()
         self._carry_out_requests()
         editing_live = doc.live
         if ui.training.before is not None and view.settings.split:
@@ -359,6 +374,8 @@ class ViewerApp:
         step_video(ui)
         if ui.window.show_help:
             help_overlay(ui)
+        else:
+            ui.window.help_rect = None
         io = imgui.get_io()
         training = self.training_now()
         view = self.view
@@ -378,6 +395,8 @@ class ViewerApp:
         io = imgui.get_io()
         k, ctrl, shift = imgui.Key, imgui.Key.mod_ctrl.value, imgui.Key.mod_shift.value
         chord = imgui.is_key_chord_pressed
+        if chord(ctrl | k.q.value):
+            quit_app()  # as the close button: before_exit stops the trainer, which saves
         if doc.editor is not None and not io.want_text_input:
             if chord(ctrl | k.s.value):
                 ui.messages.guarded("save project", self.save_project)

@@ -28,6 +28,7 @@ from app.viewer.view_panel import VIEW_WINDOW, view_window
 
 LEFT, LEFT_BOTTOM, RIGHT, RIGHT_BOTTOM = "LeftSpace", "LeftBottomSpace", "RightSpace", "RightBottomSpace"
 MAIN = "MainDockSpace"
+STYLE = "Style"  # the painting, its capacity map and the live sliders: in front while a stylization runs
 
 
 def layout_file() -> Path:
@@ -38,7 +39,8 @@ def layout_file() -> Path:
 def docking_splits() -> list:
     split = hello_imgui.DockingSplit
     return [split(MAIN, LEFT, imgui.Dir.left, 0.25), split(MAIN, RIGHT, imgui.Dir.right, 0.31),
-            split(LEFT, LEFT_BOTTOM, imgui.Dir.down, 0.25), split(RIGHT, RIGHT_BOTTOM, imgui.Dir.down, 0.36)]
+            # the View order panel's plot reads well small; the Style panel above it holds the painting and sliders
+            split(LEFT, LEFT_BOTTOM, imgui.Dir.down, 0.25), split(RIGHT, RIGHT_BOTTOM, imgui.Dir.down, 0.28)]
 
 
 def dockable_windows(doc, session, ui) -> list:
@@ -64,7 +66,7 @@ def dockable_windows(doc, session, ui) -> list:
             window("Colour", LEFT, colour_panel),
             window("Scale and up", LEFT, measure_panel),  # the measure and up tools
             window("Camera path", LEFT, path_panel), window("Messages", LEFT_BOTTOM, messages_panel),
-            window("Training", RIGHT, training_panel), window("Style", RIGHT, style_panel),
+            window("Training", RIGHT, training_panel), window(STYLE, RIGHT, style_panel),
             window("View order", RIGHT_BOTTOM, view_order_panel)]
 
 
@@ -146,8 +148,8 @@ def menus(doc, session, ui) -> None:
         if imgui.menu_item("Save project", "Ctrl+S", False)[0]:
             guarded("save project", save_project, doc, session, ui)
         imgui.separator()
-        if imgui.menu_item("Quit", "", False)[0]:
-            hello_imgui.get_runner_params().app_shall_exit = True
+        if imgui.menu_item("Quit", "Ctrl+Q", False)[0]:
+            quit_app()
         imgui.end_menu()
     if imgui.begin_menu("View"):
         if imgui.menu_item("Reset layout", "", False)[0]:
@@ -156,22 +158,95 @@ def menus(doc, session, ui) -> None:
         imgui.end_menu()
 
 
+def quit_app() -> None:
+    """File > Quit and Ctrl+Q: as the window's close button (the trainer stops and saves, the layout is kept)."""
+    hello_imgui.get_runner_params().app_shall_exit = True
+
+
 KEYS = [("left drag", "orbit"), ("right / middle drag", "pan"), ("wheel", "zoom"), ("W A S D", "fly"),
         ("Q / E", "down / up"), ("Z / C", "roll"), ("N", "snap to the nearest dataset camera"), ("R", "reset view"),
         ("space", "pause / resume training"), ("Ctrl+Z / Ctrl+Y", "undo / redo an edit"),
         ("Delete", "delete the selection"), ("G / T / Y", "gizmo: move / turn / scale (again: off)"),
+        ("Ctrl+S", "save the project"), ("Ctrl+Q", "quit (a run saves, as on closing the window)"),
         ("H or F1", "this help")]
 
 
 def help_overlay(ui) -> None:
-    """The keys, over the middle of the window (H or F1)."""
+    """The keys, over the middle of the window (H or F1), in two columns (a table: the font is proportional, so
+    padding the keys with spaces did not line the descriptions up)."""
     io = imgui.get_io()
     imgui.set_next_window_pos(imgui.ImVec2(io.display_size.x / 2, io.display_size.y / 2), imgui.Cond_.always,
                               imgui.ImVec2(0.5, 0.5))
     imgui.set_next_window_bg_alpha(0.85)
     flags = imgui.WindowFlags_.always_auto_resize | imgui.WindowFlags_.no_collapse
     expanded, ui.window.show_help = imgui.begin("Keys", True, flags)
-    if expanded:
+    if expanded and imgui.begin_table("keys", 2, imgui.TableFlags_.sizing_fixed_fit):
         for key, what in KEYS:
-            imgui.text(f"{key:<22}{what}")
+            imgui.table_next_row()
+            imgui.table_next_column()
+            imgui.text(key)
+            imgui.table_next_column()
+            imgui.text(what)
+        imgui.end_table()
+    pos, size = imgui.get_window_pos(), imgui.get_window_size()
+    ui.window.help_rect = (int(pos.x), int(pos.y), int(size.x), int(size.y))  # where it is on screen (tests look)
     imgui.end()
+
+
+def front_tab(name: str) -> str:
+    """The window in front of the dock that holds window ``name``: what the screen shows there ("" while it is not
+    docked, as in the first frames, before the layout is applied)."""
+    window = imgui.internal.find_window_by_name(name)
+    node = None if window is None else window.dock_node
+    if node is None or node.visible_window is None:
+        return ""
+    return node.visible_window.name
+
+
+def bring_to_front(name: str) -> None:
+    """Put window ``name``'s tab in front of its dock, as a click on the tab does. The keyboard stays where it is
+    (the 3D view keeps its fly keys) unless it is in that dock (a click on the Training panel's Stylize button): imgui
+    keeps the focused window's tab in front, so the window comes forward with the focus."""
+    window = imgui.internal.find_window_by_name(name)
+    if window is None or window.dock_node is None or window.dock_node.tab_bar is None:
+        return
+    focused = imgui.get_current_context().nav_window
+    if focused is not None and focused.root_window is not None and focused.root_window.dock_id == window.dock_id:
+        imgui.set_window_focus(name)
+    else:
+        window.dock_node.tab_bar.next_selected_tab_id = window.tab_id
+
+
+def style_forward(ui) -> None:
+    """A stylization began: the Style tab (the painting, its capacity map, the live sliders) is to come to the
+    front (at the next frame where the layout is in place: a run started with the window may begin before)."""
+    ui.window.style_tab = "wanted"
+    ui.window.style_covers = ""
+
+
+def watch_style_tab(ui) -> None:
+    """Each frame: bring the Style tab forward when wanted, remembering the tab it covers; once the user puts
+    another tab in front during the run, the tabs are theirs (nothing comes back at the end)."""
+    w = ui.window
+    if not w.style_tab:
+        return
+    front = front_tab(STYLE)
+    if not front:
+        return
+    if w.style_tab == "wanted":
+        w.style_covers = "" if front == STYLE else front
+        w.style_tab = "asked" if w.style_covers else ""
+        if w.style_covers:
+            bring_to_front(STYLE)
+    elif front == STYLE:
+        w.style_tab = "shown"
+    elif w.style_tab == "shown":
+        w.style_tab, w.style_covers = "", ""
+
+
+def style_back(ui) -> None:
+    """The stylization ended: the tab the Style tab covered comes back, unless the user chose a tab meanwhile."""
+    covered = ui.window.style_covers
+    ui.window.style_tab, ui.window.style_covers = "", ""
+    if covered and front_tab(STYLE) == STYLE:
+        bring_to_front(covered)

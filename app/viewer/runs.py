@@ -41,13 +41,14 @@ def start_reconstruction(doc, session, ui, then_stylize: bool = False) -> None:
     overrides = {} if t.recon_iters is None else {"iterations": int(t.recon_iters)}
     # each run in a folder of its own (reconstruction, reconstruction_2...): a later run never overwrites a model
     # that a project or a stylization refers to
+    outputs = t.outputs
     stages = [reconstruct_stage(doc.dataset.path, next_run_dir(ui.out_dir(), "reconstruction"), preset=t.preset,
-                                downscale=t.downscale, **overrides)]
+                                downscale=t.downscale, outputs=outputs and outputs.reconstruction, **overrides)]
     if then_stylize:
         if doc.painting is None:
             raise ValueError("open a painting first")
         stages.append(stylize_stage(doc.dataset.path, doc.painting.path, next_run_dir(ui.out_dir()),
-                                    config=replace(t.stylize)))
+                                    config=replace(t.stylize), outputs=outputs and outputs.stylization))
     t.before = None
     ui.messages.error = ""
     session.start(stages)
@@ -80,7 +81,7 @@ def start_stylization(doc, session, ui) -> None:
     doc.stylized_from = str(model)  # the Colour panel offers it as the result's original
     ui.messages.error = ""
     session.start([stylize_stage(doc.dataset.path, doc.painting.path, run, config=replace(t.stylize), model=model,
-                                 mask=region_mask(doc, ui))])
+                                 mask=region_mask(doc, ui), outputs=t.outputs and t.outputs.stylization)])
 
 
 def stylizing(session) -> bool:
@@ -180,3 +181,25 @@ def current_view_index(session) -> int | None:
     if session.status().stage == "stylize" and trainer is not None and hasattr(trainer, "trajectory_position"):
         return trainer.trajectory_position
     return None
+
+
+def current_camera_index(session) -> int | None:
+    """The dataset camera the stylizer optimises now (None when none runs or the view is a virtual one)."""
+    position = current_view_index(session)
+    if position is None:
+        return None
+    item = session.trainer.trajectory[position]
+    return None if item.is_virtual else item.source_index
+
+
+def stylize_progress(session) -> str:
+    """"pass p of P, view v" while a stylization runs (v: the trajectory position the View order panel numbers,
+    the view the next step optimises; under the interleaved schedule it moves at every step), else "". Read from
+    the UI thread every frame: the trainer's step count and position are plain integers it sets between steps."""
+    trainer = session.trainer
+    if not session.running or session.status().stage != "stylize" or not hasattr(trainer, "pass_progress"):
+        return ""
+    position = trainer.trajectory_position
+    done, passes = trainer.pass_progress()
+    virtual = " (virtual)" if trainer.trajectory[position].is_virtual else ""
+    return f"pass {done} of {passes}, view {position}{virtual}"

@@ -45,11 +45,14 @@ class Stage:
     """One stage of a run. ``build(previous)`` makes the trainer (on the training thread; ``previous`` is the last
     stage's ``save`` result, or None); ``save(trainer, finished, cancel)`` writes the outputs and returns what the
     next stage builds from; it runs when the schedule ends (finished=True) and on stop or error (finished=False,
-    where it must be quick: keep the model, skip the long final passes)."""
+    where it must be quick: keep the model, skip the long final passes). ``outputs(trainer, saved, say)``, when
+    given, runs after a finished stage has saved (still on the training thread, the state "finishing"): the rest of
+    what the stage writes (reports, renders); ``say(line)`` puts a line in the window at once (an "info" message)."""
 
     name: str
     build: Callable[[Any], Any]
     save: Callable[[Any, bool, Callable[[], bool]], Any]
+    outputs: Callable[[Any, Any, Callable[[str], None]], None] | None = None
 
 
 @dataclass
@@ -312,6 +315,8 @@ class LiveSession:
                 if previous is not None:
                     self._out.put(SessionMessage("saved", str(previous), stage.name))
                     self.saved.append(Path(str(previous)))
+                if finished and stage.outputs is not None:
+                    self._stage_outputs(stage, trainer, previous)
                 if not finished:
                     self._set(state="stopped")
                     return
@@ -332,6 +337,17 @@ class LiveSession:
                         self._out.put(SessionMessage("error", f"could not save: {_one_line(exc2)}", stage.name))
                 return
         self._set(state="finished" if not self._stop.is_set() else "stopped")
+
+    def _stage_outputs(self, stage: Stage, trainer, saved) -> None:
+        """A finished stage's further outputs; their failure is one line, and the model saved and the next stage
+        stand."""
+        def say(line: str) -> None:
+            self._out.put(SessionMessage("info", line, stage.name))
+
+        try:
+            stage.outputs(trainer, saved, say)
+        except Exception as exc:  # noqa: BLE001  (the model is saved; the run goes on)
+            self._out.put(SessionMessage("error", f"{stage.name} outputs: {_one_line(exc)}", stage.name))
 
     def _train(self, trainer) -> None:
         while not trainer.done and not self._stop.is_set():

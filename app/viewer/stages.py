@@ -5,6 +5,10 @@ OUT/point_cloud.ply, whether it finished or was stopped; a stylization stage wri
 post colour transfer when it finished, as it stands when stopped, and then also OUT/stylize_checkpoint.pt
 (resumable with ``splatstyler stylize ... --resume``). Both hand the PLY's path to the next stage. The
 checkpoints hold the fingerprint of their inputs (training/scene/fingerprint.py), which a resume checks.
+
+``outputs`` (Stage.outputs) writes the rest of what the command line writes once a stage has finished (the demo's
+window: report.json, renders, contact sheets). For it a reconstruction measures the model it starts from and keeps
+that and its time in the checkpoint, as the CLI does, so that a report made from the checkpoint is the CLI's.
 """
 
 from __future__ import annotations
@@ -16,9 +20,13 @@ from app.viewer.session import Stage
 
 
 def reconstruct_stage(data: str | Path, out: str | Path, preset: str = "quick", downscale: int | None = None,
-                      **overrides: Any) -> Stage:
+                      outputs=None, **overrides: Any) -> Stage:
     """3DGS with the paper's regularizers on DATA, the CLI's presets (``overrides``: ReconstructConfig fields)."""
+    import time
+
     out = Path(out)
+    report_extra: dict[str, Any] = {}  # what the CLI's report measures before the first step (with ``outputs``)
+    started: list[float] = []
 
     def build(_previous):
         from training.reconstruct.trainer import ReconstructConfig, Reconstructor
@@ -34,7 +42,17 @@ def reconstruct_stage(data: str | Path, out: str | Path, preset: str = "quick", 
         if downscale is not None:  # an explicit factor wins over the preset's target long side, as on the CLI
             cfg.downscale, cfg.max_side = int(downscale), None
         cfg.downscale = training_downscale(data, cfg.max_side, cfg.downscale)
-        return Reconstructor(load_scene(data, downscale=cfg.downscale), cfg)
+        scene = load_scene(data, downscale=cfg.downscale)
+        trainer = Reconstructor(scene, cfg)
+        if outputs is not None:
+            from training.reconstruct.metrics import constant_color_psnr
+
+            views = scene.test_indices or scene.train_indices
+            first = trainer.evaluate(views)
+            report_extra.update(initial_psnr=first["psnr"], initial_ssim=first["ssim"],
+                                constant_color_psnr=constant_color_psnr(scene, scene.train_indices, views))
+        started.append(time.perf_counter())
+        return trainer
 
     def save(trainer, finished: bool, cancel) -> Path:
         from training.model.ply_io import write_ply
@@ -42,17 +60,19 @@ def reconstruct_stage(data: str | Path, out: str | Path, preset: str = "quick", 
         from training.scene.fingerprint import dataset_fingerprint, make_fingerprint
 
         out.mkdir(parents=True, exist_ok=True)
-        # the data's fingerprint, as the CLI's checkpoints hold it: `reconstruct --resume` checks it
+        # the data's fingerprint, as the CLI's checkpoints hold it: `reconstruct --resume` checks it; the time and
+        # the first measures, which its report gives
         save_checkpoint(out / CHECKPOINT_NAME,
-                        {**trainer.state_dict(), "fingerprint": make_fingerprint(dataset=dataset_fingerprint(data))})
+                        {**trainer.state_dict(), "fingerprint": make_fingerprint(dataset=dataset_fingerprint(data)),
+                         "elapsed": time.perf_counter() - started[0], "report_extra": dict(report_extra)})
         write_ply(out / "point_cloud.ply", trainer.export_gaussians())
         return out / "point_cloud.ply"
 
-    return Stage("reconstruct", build, save)
+    return Stage("reconstruct", build, save, outputs)
 
 
 def stylize_stage(data: str | Path, style: str | Path, out: str | Path, config=None, model: str | Path | None = None,
-                  vgg_weights: str | None = None, mask=None) -> Stage:
+                  vgg_weights: str | None = None, mask=None, outputs=None) -> Stage:
     """Stylize ``model`` (or the previous stage's PLY) after the painting ``style``; ``config`` a StylizeConfig;
     ``mask`` (N,) bool: only those Gaussians change."""
     out = Path(out)
@@ -87,4 +107,4 @@ def stylize_stage(data: str | Path, style: str | Path, out: str | Path, config=N
                 trainer.model_name, data, style, trainer.config, trainer.mask))
         return out / "point_cloud.ply"
 
-    return Stage("stylize", build, save)
+    return Stage("stylize", build, save, outputs)

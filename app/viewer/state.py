@@ -174,6 +174,9 @@ class TrainingState:
     shown_step: int | None = None  # the trainer step whose model the view shows
     before: Any = None  # the model before stylization (ModelSnapshot): the split view's left side
     order_preview: list | None = None  # (camera index, centre, is_virtual) the next stylization would follow
+    # what a finished run writes besides its model (the demo's window: what the headless demo writes): an object
+    # with .reconstruction and .stylization, each a Stage.outputs (session.py); None: the model alone
+    outputs: Any = None
 
 
 @dataclass
@@ -220,9 +223,17 @@ class WindowState:
     photo_index: int = 0
     painting_rect: tuple[int, int, int, int] | None = None
     drawn_order: list[int] = field(default_factory=list)  # the View order panel's cameras, as drawn
+    order_points: list = field(default_factory=list)  # (x, y) on screen of each trajectory position, as drawn
     messages_seen: int = 0
     model_info: dict = field(default_factory=dict)  # the shown model: count, SH degree, bounds
     software_gl: bool = False  # the GL context draws on the CPU
+    help_rect: tuple[int, int, int, int] | None = None  # the keys overlay on screen, while shown
+    # a stylization brings the Style tab forward: "" (nothing to do) | wanted | asked (in front from the next frame)
+    # | shown (in front; a tab the user picks from now on wins); style_covers: the tab to bring back at the end
+    style_tab: str = ""
+    style_covers: str = ""
+    style_settings_h: float = 0.0  # the Style panel's height below the painting, last frame (the painting yields)
+    fixed_folded: bool = False  # the Style panel's "Fixed at the start" was last folded for a run (opened after)
 
 
 @dataclass

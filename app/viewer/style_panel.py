@@ -16,6 +16,9 @@ from training.stylize.config import RANGES
 GREY = imgui.ImVec4(0.6, 0.6, 0.6, 1.0)
 # Settings the stylizer fixes when it starts; the panel greys them during a run and says why.
 RESTART = "fixed while a stylization runs: it shapes the run from its first step (stop and start again)"
+# The painting gives way to the settings below it (all in view without scrolling, 1920x1080 included) down to this
+# many text lines high.
+MIN_PAINTING_LINES = 6
 
 
 def set_stylize(session, ui, **changes) -> None:
@@ -39,7 +42,7 @@ def set_stylize(session, ui, **changes) -> None:
 
 
 def style_panel(doc, session, ui) -> None:
-    painting(doc, session, ui)
+    below_painting = painting(doc, session, ui)
     cfg = ui.training.stylize
     live = session.running and session.status().stage == "stylize"
     changed, i = imgui.combo("stylize", REGIONS.index(ui.edit.region), ["every Gaussian", "only the selection",
@@ -69,7 +72,25 @@ def style_panel(doc, session, ui) -> None:
                                          "%d" if per_view else "paper's")
     if changed:
         set_stylize(session, ui, iters_per_view=per_view or None)
-    imgui.separator_text("Fixed at the start")
+    # the settings fixed at the start: folded while a run goes (greyed there, and the sliders above are the ones that
+    # act), with the run's in the header; open again when it ends; the user may open or fold it any time
+    if ui.window.fixed_folded != live:
+        imgui.set_next_item_open(not live, imgui.Cond_.always)
+        ui.window.fixed_folded = live
+    summary = f": {cfg.preset}, {cfg.view_order} order, {cfg.schedule}" if live else ""
+    if imgui.collapsing_header(f"Fixed at the start{summary}###fixed at the start"):
+        fixed_settings(session, ui, cfg, live)
+    trainer = session.trainer
+    if live and trainer is not None:
+        u = trainer.utilisation()
+        if u:
+            imgui.text(f"last plan: utilisation {u.get('utilisation', float('nan')):.3f}, "
+                       f"column entropy {u.get('column_entropy', float('nan')):.3f}")
+    ui.window.style_settings_h = imgui.get_cursor_pos_y() - below_painting  # the painting leaves them room
+
+
+def fixed_settings(session, ui, cfg, live: bool) -> None:
+    """Preset, view order, schedule, virtual views, colour transfer: greyed during a run."""
     imgui.begin_disabled(live)
     presets = list(D.PRESETS)
     changed, i = imgui.combo("stylize preset", presets.index(cfg.preset), presets)
@@ -81,6 +102,13 @@ def style_panel(doc, session, ui) -> None:
     changed, i = imgui.combo("view order", orders.index(cfg.view_order), orders)
     if changed:
         set_stylize(session, ui, view_order=orders[i])
+    schedules = list(D.SCHEDULES)
+    changed, i = imgui.combo("schedule", schedules.index(cfg.schedule), schedules)
+    if changed:
+        set_stylize(session, ui, schedule=schedules[i])
+    imgui.set_item_tooltip("interleaved (the paper's): a new view of the order at every iteration, in passes along "
+                           "it, so the guide map comes from the previous iteration's view; block: the iterations "
+                           "per view on one view, then the next")
     changed, n = imgui.slider_int("virtual views", cfg.virtual_views, *map(int, RANGES["virtual_views"][:2]))
     if changed:
         set_stylize(session, ui, virtual_views=n)
@@ -89,21 +117,18 @@ def style_panel(doc, session, ui) -> None:
         set_stylize(session, ui, color_transfer=ct)
     imgui.end_disabled()
     if live:
+        imgui.push_text_wrap_pos(0.0)
         imgui.text_colored(GREY, "greyed: " + RESTART)
-    trainer = session.trainer
-    if live and trainer is not None:
-        u = trainer.utilisation()
-        if u:
-            imgui.separator_text("Style use (last plan)")
-            imgui.text(f"utilisation {u.get('utilisation', float('nan')):.3f}   "
-                       f"column entropy {u.get('column_entropy', float('nan')):.3f}")
+        imgui.pop_text_wrap_pos()
 
 
-def painting(doc, session, ui) -> None:
-    """The painting, with the live capacity map (column mass of the last transport plan) over it."""
+def painting(doc, session, ui) -> float:
+    """The painting, with the live capacity map (column mass of the last transport plan) over it, as large as the
+    panel's width allows and as high as the settings below it leave room for (the last frame's height of them);
+    returns the cursor's height below the picture."""
     if doc.painting is None:
         imgui.text_colored(GREY, "no painting: open one in the Scene panel")
-        return
+        return imgui.get_cursor_pos_y()
     ctx = ui.view.ctx
     tex = ui.textures
     img = doc.painting.image
@@ -112,15 +137,22 @@ def painting(doc, session, ui) -> None:
             tex.painting.release()
         rgba = np.concatenate([img, np.ones(img.shape[:2] + (1,), np.float32)], axis=2)
         tex.painting = ctx.texture((img.shape[1], img.shape[0]), 4, np.ascontiguousarray(rgba).tobytes(), dtype="f4")
+        tex.painting.build_mipmaps()  # shown smaller than it is (it yields to the settings): filtered, not aliased
         tex.painting_of = img
-    width = imgui.get_content_region_avail().x
-    size = imgui.ImVec2(width, width * img.shape[0] / img.shape[1])
+    avail = imgui.get_content_region_avail()
+    room = max(avail.y - ui.window.style_settings_h, MIN_PAINTING_LINES * imgui.get_text_line_height_with_spacing())
+    height = min(avail.x * img.shape[0] / img.shape[1], room)
+    size = imgui.ImVec2(height * img.shape[1] / img.shape[0], height)
+    imgui.set_cursor_pos_x(imgui.get_cursor_pos_x() + (avail.x - size.x) / 2)  # a narrower picture is centred
     pos = imgui.get_cursor_screen_pos()
     imgui.image(imgui.ImTextureRef(tex.painting.glo), size)
+    below = imgui.get_cursor_pos_y()
     ui.window.painting_rect = (int(pos.x), int(pos.y), int(size.x), int(size.y))  # where it is on screen (tests look)
     trainer = session.trainer
     capacity = trainer.capacity_map() if trainer is not None and hasattr(trainer, "capacity_map") else None
     changed, ui.window.show_capacity = imgui.checkbox("capacity map", ui.window.show_capacity)
+    imgui.set_item_tooltip("the column mass of the last transport plan at each style feature's place: red to yellow "
+                           "where a pattern gets more than its fair share, blue where it gets less")
     if capacity is not None and ui.window.show_capacity:
         heat = heatmap(capacity)
         if tex.capacity is None or tex.capacity.size != (heat.shape[1], heat.shape[0]):
@@ -130,8 +162,10 @@ def painting(doc, session, ui) -> None:
         tex.capacity.write(np.ascontiguousarray(heat).tobytes())
         imgui.get_window_draw_list().add_image(imgui.ImTextureRef(tex.capacity.glo), pos,
                                                imgui.ImVec2(pos.x + size.x, pos.y + size.y))
-        imgui.text(f"capacity: {capacity.shape[1]}x{capacity.shape[0]} style features, "
+        imgui.same_line()  # one line with the checkbox: the height goes to the painting
+        imgui.text(f"{capacity.shape[1]}x{capacity.shape[0]} style features, "
                    f"max {capacity.max() * capacity.size:.1f}x the fair share")
+    return below
 
 
 def heatmap(mass: np.ndarray) -> np.ndarray:

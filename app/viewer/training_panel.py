@@ -7,7 +7,7 @@ import numpy as np
 from imgui_bundle import imgui, implot
 
 from app.viewer.files import open_model
-from app.viewer.runs import start_reconstruction, start_stylization
+from app.viewer.runs import start_reconstruction, start_stylization, stylize_progress
 from app.viewer.view3d import RANGES
 
 RED = imgui.ImVec4(1.0, 0.4, 0.35, 1.0)
@@ -82,6 +82,9 @@ def training_panel(doc, session, ui) -> None:
     line = f"{status.stage}: {status.state}" if status.stage else status.state  # "idle" before any run
     if status.total:
         line += f"  {status.step}/{status.total}"
+    where = stylize_progress(session)
+    if where:
+        line += f"  ({where})"
     imgui.text(line)
     m = status.last_metrics
     bits = [f"{status.steps_per_second:.1f} it/s"]

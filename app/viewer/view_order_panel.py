@@ -1,12 +1,13 @@
 """The View order panel: the cameras on their best-fit plane, numbered in the order the stylization visits them, the
-current view red and the next yellow; a click goes to that camera."""
+current view red and the next yellow (under the interleaved schedule they move at every step), the pass along the
+path; a click goes to that camera."""
 
 from __future__ import annotations
 
 import numpy as np
 from imgui_bundle import imgui
 
-from app.viewer.runs import current_view_index, trajectory
+from app.viewer.runs import current_view_index, stylize_progress, trajectory
 
 GREY = imgui.ImVec4(0.6, 0.6, 0.6, 1.0)
 
@@ -51,8 +52,9 @@ def view_order_panel(doc, session, ui) -> None:
         if d[pos] < 15:
             ui.requests.camera = items[pos][0]
     ui.window.drawn_order = [source for source, _, virtual in items if not virtual]
-    imgui.text(f"{len(items)} views in order" + (f", now at {current}" if current is not None else "")
-               + "; click a camera to go there")
+    ui.window.order_points = pts  # where each trajectory position is drawn (tests look for the marks there)
+    where = stylize_progress(session)
+    imgui.text(f"{len(items)} views in order" + (f"; {where}" if where else "") + "; click a camera to go there")
 
 
 def plane_coordinates(points: np.ndarray) -> np.ndarray:
