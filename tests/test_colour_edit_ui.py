@@ -368,6 +368,7 @@ def test(ctx):
     open_window(ctx, "Training")
     ctx.item_click("Stylize")
     wait(ctx, lambda: app.session.status().step >= 3, 240, "three stylization steps")
+    open_window(ctx, "Training")  # the Style tab came in front when the stylization started
     ctx.item_click("Pause")
     wait(ctx, lambda: app.session.status().state == "paused", 60, "the pause")
     app.ui.training.refresh_s = 0.05
