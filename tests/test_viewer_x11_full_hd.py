@@ -17,6 +17,7 @@ import numpy as np
 import pytest
 
 from tests.system_deps import requires_program
+from tests.test_viewer_x11 import psnr, x11_env
 from tests.viewer_harness import PRELUDE, ROOT, Xvfb, make_demo_scene, run_gui, xvfb_missing
 
 pytestmark = [pytest.mark.slow, pytest.mark.skipif(bool(xvfb_missing()), reason=xvfb_missing() or "ok")]
@@ -38,14 +39,6 @@ def x_server():
     yield server
     server.stop()
 
-
-def x11_env(server) -> dict:
-    return {"DISPLAY": server.display, "SPLATSTYLER_VIEWER_PLATFORM": "x11"}
-
-
-def psnr(a: np.ndarray, b: np.ndarray) -> float:
-    mse = float(np.mean((a.astype(np.float64) - b.astype(np.float64)) ** 2))
-    return 99.0 if mse == 0 else 10 * np.log10(255.0 ** 2 / mse)
 
 
 def red_mark(screen: np.ndarray, rect) -> tuple[float, float] | None:
