@@ -264,6 +264,12 @@ gsplat_build() {  # gsplat compiles its CUDA extension on first use; bench raste
   "$PY" -m app bench raster --backends cuda --n 100000 --size 1920x1080 --repeat 1
 }
 
+pack_build() {  # gsplat's compiled extension back into $OUT, so a later lease carries .gpu_build and skips the build
+  [ -d .gpu_build/torch_extensions ] || { echo "skipped: no gsplat build in .gpu_build"; return 0; }
+  tar -czf "$OUT/gpu_build.tar.gz" .gpu_build
+  ls -la "$OUT/gpu_build.tar.gz"
+}
+
 bench() {  # the rasterizer and the CUDA display path's frame breakdown, into one report
   local why; why="$(no_cuda)"; [ -z "$why" ] || { echo "skipped: $why"; return 0; }
   "$PY" -m app bench gpu --steps raster,display -o "$WORK/bench_gpu" --repeat 5
@@ -344,7 +350,8 @@ run() {
         step install 180 install
         environment  # /tmp/site exists now
         step machine 90 machine
-        step gsplat_build 300 gsplat_build ;;
+        step gsplat_build 300 gsplat_build
+        step pack_build 60 pack_build ;;
       display)
         step parity 300 "$PY" -m pytest -q -rs -p no:cacheprovider tests/test_raster_cuda.py tests/test_display_path.py
         step bench_gpu 300 bench ;;
@@ -361,8 +368,8 @@ run() {
   collect
 }
 
-export -f install install_live machine no_cuda gsplat_build bench window live environment
-export PY REPO SHARED PYVER
+export -f install install_live machine no_cuda gsplat_build pack_build bench window live environment
+export PY REPO SHARED PYVER OUT
 
 case "${1:-}" in
   prepare) shift; prepare "$@" ;;
