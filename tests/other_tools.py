@@ -1,5 +1,6 @@
 """Readers and writers we did not write, for the format tests: PlayCanvas's splat-transform (its own SPZ decoder, the
-SPZ reference's encoder built to WebAssembly as ``@adobe/spz``, a .glb writer) and the Khronos glTF validator.
+SPZ reference's encoder built to WebAssembly as ``@adobe/spz``, a .glb writer), the SPZ reference library itself
+(``@adobe/spz``, decoding with its coordinate conversions: js/spz_reference.mjs) and the Khronos glTF validator.
 They come from npm, pinned by tests/js/package-lock.json, and are installed (``npm ci``, ~15 s) on first use; the
 tests that need them skip only where node and npm are missing."""
 
@@ -10,11 +11,13 @@ import shutil
 import subprocess
 from pathlib import Path
 
+import numpy as np
 import pytest
 
 JS = Path(__file__).resolve().parent / "js"
 SPLAT_TRANSFORM = JS / "node_modules" / "@playcanvas" / "splat-transform" / "bin" / "cli.mjs"
 VALIDATOR = JS / "node_modules" / "gltf-validator" / "package.json"
+SPZ_LIBRARY = JS / "node_modules" / "@adobe" / "spz" / "package.json"
 
 
 def _node() -> str:
@@ -24,7 +27,7 @@ def _node() -> str:
     if missing:
         pytest.skip(f"{missing}: the readers we did not write come from npm (tests/js/package.json)")
     node = shutil.which("node")
-    if not SPLAT_TRANSFORM.exists() or not VALIDATOR.exists():
+    if not SPLAT_TRANSFORM.exists() or not VALIDATOR.exists() or not SPZ_LIBRARY.exists():
         proc = subprocess.run(["npm", "ci", "--no-audit", "--no-fund", "--ignore-scripts"], cwd=JS,
                               capture_output=True, text=True, timeout=900)
         assert proc.returncode == 0, f"npm ci in {JS} failed:\n{proc.stderr[-2000:]}"
@@ -45,3 +48,29 @@ def validate_gltf(path: Path) -> dict:
                           text=True, timeout=300)
     assert proc.returncode == 0, proc.stderr
     return json.loads(proc.stdout)
+
+
+def _spz_reference(*args) -> None:
+    proc = subprocess.run([_node(), str(JS / "spz_reference.mjs"), *map(str, args)], cwd=JS, capture_output=True,
+                          text=True, timeout=300)
+    assert proc.returncode == 0, f"spz_reference {args} failed:\n{proc.stdout[-2000:]}\n{proc.stderr[-2000:]}"
+
+
+def spz_reference_decode(path: Path, to: str, workdir: Path) -> dict:
+    """The SPZ file at ``path`` as the reference library's ``loadSpz`` gives it with ``UnpackOptions.to = to``
+    (an axes name, or UNSPECIFIED for the bytes as stored): numPoints, shDegree, extensions and the float arrays
+    (positions, log scales, x y z w rotations, logit alphas, DC colours, SH coefficient-major)."""
+    out = Path(workdir) / f"ref-{Path(path).stem}-{to}"
+    _spz_reference("decode", path, out, to)
+    result = json.loads((out / "meta.json").read_text())
+    n = result["numPoints"]
+    for name, width in [("positions", 3), ("scales", 3), ("rotations", 4), ("alphas", 1), ("colors", 3), ("sh", None)]:
+        values = np.fromfile(out / f"{name}.f32", dtype="<f4")
+        result[name] = values.reshape(n, -1, 3) if width is None else values.reshape(n, width)
+    return result
+
+
+def spz_reference_reencode(source: Path, target: Path, to: str, version: int = 4) -> None:
+    """``source`` loaded by the reference turned to ``to``, saved as ``target`` as it stands (from UNSPECIFIED, no
+    extension): the reference's own conversion, in a file that does not name its axes."""
+    _spz_reference("reencode", source, target, to, version)

@@ -90,9 +90,9 @@ def _json(data: bytes) -> bytes:
 
 # (format, spz version, damage, a word the line must hold)
 DAMAGES = [("ply", None, _truncate, "truncated"), ("compressed-ply", None, _truncate, "truncated"),
-           ("splat", None, _truncate, "not a multiple of 32"), ("spz", 4, _truncate, "not a readable SPZ file"),
-           ("spz", 3, _truncate, "not a readable SPZ file"), ("glb", None, _truncate, "truncated or damaged"),
-           ("spz", 4, _damage_middle, "not a readable SPZ file"), ("spz", 3, _damage_middle, "not a readable SPZ"),
+           ("splat", None, _truncate, "not a multiple of 32"), ("spz", 4, _truncate, "truncated or damaged"),
+           ("spz", 3, _truncate, "truncated or damaged"), ("glb", None, _truncate, "truncated or damaged"),
+           ("spz", 4, _damage_middle, "SPZ"), ("spz", 3, _damage_middle, "not a readable SPZ"),
            ("glb", None, _damage_middle, "JSON"), ("compressed-ply", None, _damage_middle, "PLY"),
            ("spz", 4, _text, "not an SPZ file"), ("glb", None, _json, "not a binary glTF")]
 

@@ -6,8 +6,12 @@ IN is any model file ``read_model`` reads (.ply, .compressed.ply, .splat, .spz, 
 PlayCanvas engine load: 16 bytes per Gaussian plus 3 per SH coefficient kept), ``*.ply`` (standard 3DGS layout;
 all 45 f_rest, zero-padded, unless ``--compact-sh``), ``*.splat`` (web viewers; colour from the SH DC term only),
 ``*.spz`` (Niantic's SPZ, about a tenth of a PLY with SH kept; ``--spz-version 4`` (default, the current spec, ZSTD)
-or ``3`` (gzip) for older readers), ``*.glb`` (glTF 2.0 with KHR_gaussian_splatting, float32). SPZ and glTF store
-right-up-back axes as their specs say; the model's right-down-forward (graphdeco's PLY) axes are turned on the way.
+or ``3`` (gzip) for older readers), ``*.glb`` (glTF 2.0 with KHR_gaussian_splatting, float32). Axes: each file
+opens the right way up where users open it (docs/editor.md, "Axes"): SPZ keeps the model's right-down-forward
+(graphdeco's PLY) axes as SuperSplat and splat-transform read SPZ, named in a version 4 file; ``--axes rub``
+writes the right-up-back that the SPZ README describes instead (any of the 16 conventions of the reference's
+coordinate-system extension is taken). glTF is left-up-front as its spec says. ``--input-axes`` names the axes
+of an SPZ input that does not name its own (default rdf; ``rub`` for files that follow the README unlabelled).
 ``--sh-bands B`` keeps SH bands 0..B. A selection (``--mask FILE``, ``--box``, ``--sphere``, with ``--invert``)
 writes only those Gaussians. The size of the file is printed before it is written (SPZ: once compressed);
 ``--dry-run`` prints it and writes nothing.
@@ -24,6 +28,16 @@ import argparse
 from pathlib import Path
 
 from app.region_flags import add_region_flags, region_from_args
+
+
+def axes_arg(value: str) -> str:
+    """An axes name of training/model/axes.py, any case (imported when the flag is given: --help stays light)."""
+    from training.model.axes import axes_name
+
+    try:
+        return axes_name(value)
+    except ValueError as exc:
+        raise argparse.ArgumentTypeError(str(exc)) from None
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -47,6 +61,13 @@ def register(sub: argparse._SubParsersAction) -> None:
     parser.add_argument("--spz-version", type=int, choices=(3, 4), default=None, metavar="3|4",
                         help="SPZ: 4 (default, the current spec: ZSTD streams) or 3 (one gzip stream, for older "
                              "readers)")
+    parser.add_argument("--axes", type=axes_arg, default=None, metavar="AXES",
+                        help="SPZ: the axes the file stores: rdf (default: the PLY's, as SuperSplat and "
+                             "splat-transform read SPZ) or rub (the SPZ README's), or another of the reference's 16 "
+                             "(e.g. ruf); named in the file (all but a version 3 file of rdf)")
+    parser.add_argument("--input-axes", type=axes_arg, default=None, metavar="AXES",
+                        help="an SPZ input that does not name its axes holds these (default rdf; rub for files "
+                             "written to the SPZ README's convention without saying so)")
     parser.add_argument("--sh-bands", "--sh-degree", dest="sh_degree", type=int, choices=range(4), default=None,
                         metavar="B", help="keep SH bands up to B (0..3, at most the input's); default: all the "
                                           "input and the format hold")
@@ -91,13 +112,19 @@ def run(args: argparse.Namespace) -> int:
         raise InputError(args.output, f"is a folder; give an output file name ending in {SUFFIX_LIST}")
     if args.spz_version is not None and fmt != "spz":
         raise InputError(None, f"--spz-version applies to SPZ output, not {FORMAT_NAMES[fmt]}")
+    if args.axes is not None and fmt != "spz":
+        raise InputError(None, f"--axes applies to SPZ output ({FORMAT_NAMES[fmt]} has one convention: "
+                               "docs/editor.md, \"Axes\")")
     if (args.input is None) == (args.project is None):
         raise InputError(None, "give a model file IN or --project P (one of them)")
     if args.without_hidden and args.project is None:
         raise InputError(None, "--without-hidden applies to --project")
     source = args.input if args.project is None else args.project
     region = region_from_args(args)  # checked before the model is read
-    g = read_model(args.input) if args.project is None else baked_project(args.project, args.without_hidden)
+    if args.input_axes is not None and args.project is not None:
+        raise InputError(None, "--input-axes applies to a model file IN, not to --project")
+    g = read_model(args.input, spz_axes=args.input_axes) if args.project is None \
+        else baked_project(args.project, args.without_hidden)
     if args.sh_degree is not None:
         if fmt == "splat" and args.sh_degree > 0:
             raise InputError(None, "--sh-bands above 0 needs a format that holds SH (.splat keeps only the colour)")
@@ -111,7 +138,8 @@ def run(args: argparse.Namespace) -> int:
         raise InputError(None, f"the selection holds none of the model's {len(g)} Gaussians: nothing to export")
     size = export_size(fmt, bands, count, pad_sh=not args.compact_sh)
     what = f"{count} of {len(g)} Gaussians" if mask is not None else f"{count} Gaussians"
-    name = FORMAT_NAMES[fmt] + (f" version {args.spz_version or 4}" if fmt == "spz" else "")
+    name = FORMAT_NAMES[fmt] + (f" version {args.spz_version or 4}, {args.axes or 'RDF'} axes" if fmt == "spz"
+                                else "")
     sized = ("size known once compressed" if size is None
              else f"{human_size(size)} ({size} bytes, {size / count:.1f} per Gaussian)")
     line = f"{args.output}: {name}, {what}, SH bands {bands}, {sized}"
@@ -119,7 +147,8 @@ def run(args: argparse.Namespace) -> int:
         print(f"would write {line}")
         return 0
     print(f"writing {line}", flush=True)
-    result = write_export(args.output, g, fmt, bands, mask, pad_sh=not args.compact_sh, spz_version=args.spz_version)
+    result = write_export(args.output, g, fmt, bands, mask, pad_sh=not args.compact_sh, spz_version=args.spz_version,
+                          spz_axes=args.axes)
     print(f"wrote {args.output} ({count} Gaussians, "
           + ("SH degree 0 colour only" if fmt == "splat" else f"SH degree {bands}")
           + (f", {human_size(result.size)}, {result.size / count:.1f} bytes per Gaussian)" if size is None else ")"))

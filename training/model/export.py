@@ -93,11 +93,13 @@ class ExportResult:
 
 
 def write_export(path: str | Path, gaussians: Gaussians, fmt: str | None = None, sh_bands: int | None = None,
-                 mask=None, pad_sh: bool = True, spz_version: int | None = None) -> ExportResult:
+                 mask=None, pad_sh: bool = True, spz_version: int | None = None,
+                 spz_axes: str | None = None) -> ExportResult:
     """Write ``gaussians`` (only ``mask``'s when given) to ``path`` in ``fmt`` (default: from the file name) keeping
-    ``sh_bands`` (default: all the format and the model hold), atomically; ``spz_version`` 3 or 4 (default: the
-    current, 4) for SPZ. ValueError for an unknown format, bands the model or format lacks, an empty selection or a
-    non-finite model."""
+    ``sh_bands`` (default: all the format and the model hold), atomically; for SPZ ``spz_version`` 3 or 4 (default:
+    the current, 4) and ``spz_axes``, the axes the file stores (default RDF, as SuperSplat and splat-transform read
+    SPZ; training/model/spz_io.py). ValueError for an unknown format, bands the model or format lacks, an empty
+    selection, unknown axes or a non-finite model."""
     fmt = fmt or format_for_path(path)
     if fmt is None:
         raise ValueError(f"cannot tell the format from {Path(path).name!r}; name it {SUFFIX_LIST}")
@@ -117,9 +119,10 @@ def write_export(path: str | Path, gaussians: Gaussians, fmt: str | None = None,
 
         order = write_compressed_ply(path, g)
     elif fmt == "spz":
-        from training.model.spz_io import LATEST_SPZ_VERSION, write_spz
+        from training.model.spz_io import LATEST_SPZ_VERSION, SPZ_AXES, write_spz
 
-        write_spz(path, g, version=LATEST_SPZ_VERSION if spz_version is None else spz_version)
+        write_spz(path, g, version=LATEST_SPZ_VERSION if spz_version is None else spz_version,
+                  axes=SPZ_AXES if spz_axes is None else spz_axes)
     elif fmt == "glb":
         from training.model.gltf_io import write_glb
 

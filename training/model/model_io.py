@@ -13,13 +13,20 @@ format              recognised by                                         read b
                     header)
 ==================  ====================================================  =================================
 
-A file whose bytes match none gets the error of the format its name asks for (``x.spz: not an SPZ file ...``), or
-says which files are models. What comes back is validated once here: at least one Gaussian, every value finite
-(each reader also refuses what its format rules out), on ``device``, with RDF axes (training/model/axes.py).
+A ``.splat`` has no header: its first bytes are a float32 centre, which may by chance spell another format's
+signature (gzip's two bytes once in 65,536 files). So a file named ``.splat`` is another format only when that
+format's header holds up beyond the signature: a gzip stream that inflates to ``NGSP``, ``NGSP`` followed by
+version 4, ``glTF`` followed by version 2 and the file's length, a PLY header that parses. A file whose bytes match
+none gets the error of the format its name asks for (``x.spz: not an SPZ file ...``), or says which files are
+models. What comes back is validated once here: at least one Gaussian, every value finite (each reader also
+refuses what its format rules out), on ``device``, with RDF axes (training/model/axes.py); a model too large for
+the memory left is one line naming the file too.
 """
 
 from __future__ import annotations
 
+import struct
+import zlib
 from pathlib import Path
 
 import torch
@@ -28,6 +35,7 @@ from training.core.errors import InputError
 from training.model.gaussians import Gaussians
 
 MODEL_FORMATS = ("ply", "compressed-ply", "splat", "spz", "glb")
+_SNIFF_BYTES = 1 << 16  # enough gzip input to inflate a header's first bytes
 MODEL_SUFFIXES = (".ply", ".splat", ".spz", ".glb")  # .compressed.ply ends in .ply
 FILE_DIALOG_PATTERN = " ".join("*" + s for s in MODEL_SUFFIXES)
 WHAT_MODELS_ARE = "a Gaussian model file (.ply, .compressed.ply, .splat, .spz or .glb)"
@@ -49,21 +57,39 @@ def model_format(path: str | Path) -> str | None:
         return None
     try:
         with open(path, "rb") as f:
-            head = f.read(4)
+            head = f.read(_SNIFF_BYTES)
+        size = path.stat().st_size
     except OSError as exc:
         raise InputError(path, f"cannot read: {exc.strerror or exc}") from None
-    if head in (b"ply\n", b"ply\r"):
+    splat = path.suffix.lower() == ".splat"
+    if head[:4] in (b"ply\n", b"ply\r"):
         from training.model.compressed_ply import is_compressed_layout
         from training.model.ply_io import ply_elements
 
-        return "compressed-ply" if is_compressed_layout(ply_elements(path)) else "ply"
-    if head == b"NGSP" or head[:2] == _GZIP:
+        try:
+            elements = ply_elements(path)
+        except InputError:
+            if splat:
+                return "splat"
+            raise
+        return "compressed-ply" if is_compressed_layout(elements) else "ply"
+    if head[:4] == b"NGSP" and (not splat or head[4:8] == struct.pack("<I", 4)):
         return "spz"
-    if head == b"glTF":
+    if head[:2] == _GZIP and (not splat or _inflates_to_spz(head)):
+        return "spz"
+    if head[:4] == b"glTF" and (not splat or head[4:12] == struct.pack("<II", 2, size)):
         return "glb"
-    if path.suffix.lower() == ".splat":
+    if splat:
         return "splat"
     return None
+
+
+def _inflates_to_spz(head: bytes) -> bool:
+    """Whether a gzip stream's first inflated bytes are an SPZ header's ``NGSP``."""
+    try:
+        return zlib.decompressobj(16 + zlib.MAX_WBITS).decompress(head, 4) == b"NGSP"
+    except zlib.error:
+        return False
 
 
 def _not_a_model(path: Path) -> InputError:
@@ -95,9 +121,11 @@ def checked_format(path: str | Path) -> str:
     return fmt
 
 
-def read_model(path: str | Path, device: str | torch.device = "cpu") -> Gaussians:
-    """The Gaussians of the model file at ``path`` (any format in the table), validated, on ``device``.
-    InputError naming the file, in one line, for anything that is not a readable model."""
+def read_model(path: str | Path, device: str | torch.device = "cpu", spz_axes: str | None = None) -> Gaussians:
+    """The Gaussians of the model file at ``path`` (any format in the table), validated, on ``device``;
+    ``spz_axes``: the axes of an SPZ file that does not name its own (default RDF; training/model/spz_io.py).
+    InputError naming the file, in one line, for anything that is not a readable model, including one too large
+    for the memory left."""
     path = Path(path)
     fmt = checked_format(path)
     if fmt == "ply":
@@ -105,12 +133,19 @@ def read_model(path: str | Path, device: str | torch.device = "cpu") -> Gaussian
     elif fmt == "compressed-ply":
         from training.model.compressed_ply import read_compressed_ply as read
     elif fmt == "spz":
-        from training.model.spz_io import read_spz as read
+        from functools import partial
+
+        from training.model.spz_io import read_spz
+
+        read = partial(read_spz, axes=spz_axes)
     elif fmt == "glb":
         from training.model.gltf_io import read_glb as read
     else:
         from training.model.splat_io import read_splat as read
-    gaussians = read(path)
+    try:
+        gaussians = read(path)
+    except MemoryError:
+        raise InputError(path, "too large for the memory left to read it") from None
     n = len(gaussians)
     if n == 0:
         raise InputError(path, "holds no Gaussians")
