@@ -355,8 +355,11 @@ def test_style_strength_while_and_after_stylizing_exports_the_original_and_the_s
     scene_dir, style, model = demo_scene
     found = run_gui(PRELUDE + STILL + f"""
 from imgui_bundle import imgui
+# a run far longer than the test (it is stopped after the pause): with a short one (2 per view, about 70 steps) a
+# busy machine drew the window so slowly that the run reached its end, where a pause is never taken, before Pause
+# was clicked; the steps up to the pause are the same whatever the length (no schedule depends on it)
 app = ViewerApp(Paths(model={str(model)!r}, data={str(scene_dir)!r}, style={str(style)!r}, out=str(OUT / "out")),
-                stylize_overrides={{"max_side": 64, "iters_per_view": 2}})
+                stylize_overrides={{"max_side": 64, "iters_per_view": 30}})
 install_reader(app)
 
 def test(ctx):

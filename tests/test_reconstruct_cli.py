@@ -40,6 +40,16 @@ def _run(args, capsys):
     return rc, capsys.readouterr()
 
 
+def test_help_says_a_finished_run_keeps_its_checkpoint_and_why(capsys):
+    """A finished run keeps OUT/checkpoint.pt (about three times the PLY on disk, the model with Adam's moments):
+    --help says so, what it is for and that it may be deleted (the test below extends a finished run from it)."""
+    with pytest.raises(SystemExit):
+        main(["reconstruct", "--help"])
+    text = " ".join(capsys.readouterr().out.split())
+    assert "The checkpoint is kept when the run finishes" in text
+    assert "--resume --iters N trains on from it" in text and "delete it once the model is final" in text
+
+
 @pytest.mark.slow
 def test_cli_writes_ply_report_and_resumes(demo_folder, tmp_path, capsys):
     out = tmp_path / "out"

@@ -504,3 +504,56 @@ Path(os.environ["RESULT"]).write_text(json.dumps(found))
     lines = found["messages"]
     assert any(line.startswith("style distance (SWD)") for line in lines)  # the verdict, in the window
     assert any(line.startswith("contact sheet") for line in lines)
+
+
+def test_the_style_panel_shows_no_error_while_a_stylization_loads_after_a_reconstruction(demo_scene, tmp_path):
+    """Reconstruct + stylize in the window: while the stylization loads (held here until the panels have been drawn
+    during it, as on a slow machine), the session's trainer is still the reconstruction's. The Style panel reads the
+    plan's figures from the session's status, the stylization's own once it steps; the demo in a window ended with
+    "Style: AttributeError: 'Reconstructor' object has no attribute 'utilisation'" in red."""
+    scene_dir, style, _ = demo_scene
+    found = run_gui(PRELUDE + f"""
+import threading
+from app.viewer import runs
+loaded = threading.Event()
+stylize_stage = runs.stylize_stage
+
+def held_stage(*args, **kwargs):  # the real stage, its load held until the test lets it go on
+    stage = stylize_stage(*args, **kwargs)
+    build = stage.build
+
+    def held(previous):
+        loaded.wait(300)
+        return build(previous)
+
+    stage.build = held
+    return stage
+
+runs.stylize_stage = held_stage
+app = ViewerApp(Paths(data={str(scene_dir)!r}, style={str(style)!r}, out=str(OUT / "out")), recon_iters=3,
+                downscale=4, stylize_overrides={{"max_side": 32, "iters_per_view": 30}})
+
+def test(ctx):
+    settle(ctx, 0.5)
+    open_window(ctx, "Training")
+    ctx.item_click("Reconstruct + stylize")
+    wait(ctx, lambda: app.session.status().stage == "stylize", 300, "the stylization to begin loading")
+    open_window(ctx, "Style")
+    ctx.yield_(10)
+    found["trainer_while_loading"] = type(app.session.trainer).__name__
+    found["error_while_loading"] = app.ui.messages.error
+    loaded.set()
+    wait(ctx, lambda: app.session.status().step >= 2, 300, "two stylization steps")
+    open_window(ctx, "Style")
+    ctx.yield_(5)
+    found["plan"] = sorted(app.session.status().last_metrics)
+    app.session.stop()
+    wait(ctx, lambda: not app.session.running, 120, "the run to stop")
+
+run(app, test)
+found["error"] = app.ui.messages.error
+Path(os.environ["RESULT"]).write_text(json.dumps(found))
+""", tmp_path)
+    assert found["trainer_while_loading"] == "Reconstructor"  # the moment the panel once probed
+    assert found["error_while_loading"] == "" and found["error"] == "", found
+    assert "utilisation" in found["plan"] and "column_entropy" in found["plan"]

@@ -182,3 +182,43 @@ Path(os.environ["RESULT"]).write_text(json.dumps(found))
     assert len(again.models) == 1
     (saved_region, adjustment), = again.models[0].colour.adjustments
     assert np.array_equal(saved_region, region) and adjustment.brightness == pytest.approx(0.3)
+
+
+def test_save_project_as_asks_for_the_name_and_ctrl_s_then_saves_there(tmp_path):
+    """File > Save project as: the system's save dialog (asked to confirm before replacing a file) names the file,
+    the project is written there, and Ctrl+S saves there from then on (nothing is written to the output folder)."""
+    from app.project import open_project
+    from tests.viewer_harness import file_dialog_answering
+
+    write_model(tmp_path / "m.ply")
+    chosen = tmp_path / "chosen" / "mine.splatproj"
+    chosen.parent.mkdir()
+    found = run_gui(PRELUDE + f"""
+from imgui_bundle import imgui
+app = ViewerApp(Paths(model={str(tmp_path / "m.ply")!r}, out=str(OUT / "out")))
+
+def test(ctx):
+    wait(ctx, lambda: app.document.editor is not None, 60, "the model")
+    ctx.set_ref("##MainMenuBar")
+    ctx.menu_click("File/Save project as...")
+    ctx.yield_(2)
+    found["after_save_as"] = app.ui.project.path
+    ed = app.document.editor
+    ed.select(np.arange(ed.count) < 10)
+    ed.delete()
+    ctx.key_press(imgui.Key.mod_ctrl | imgui.Key.s)
+    ctx.yield_(2)
+    found["count"] = ed.count
+
+run(app, test)
+found["project"] = app.ui.project.path
+found["error"] = app.ui.messages.error
+Path(os.environ["RESULT"]).write_text(json.dumps(found))
+""", tmp_path, env=file_dialog_answering(tmp_path / "dialog", chosen))
+    assert found["error"] == "", found["error"]
+    assert found["after_save_as"] == found["project"] == str(chosen)
+    asked = (tmp_path / "dialog" / "dialog_calls.txt").read_text().splitlines()  # the one call's arguments
+    assert "--save" in asked and "--confirm-overwrite" in asked and "Save project as" in asked
+    saved, _ = open_project(chosen)
+    assert len(saved.models[0].kept) == found["count"] == 140  # Ctrl+S wrote the deletion there
+    assert not list((tmp_path / "out").glob("*.splatproj"))

@@ -394,3 +394,55 @@ Path(os.environ["RESULT"]).write_text(json.dumps(found))
         value = psnr(region, wanted)
         assert value >= 25.0, (f"{name}: the X screen does not show the opened model (PSNR {value:.1f} dB; against "
                                f"the finished run's model {psnr(region, run_model):.1f} dB)")
+
+
+def test_x11_ctrl_s_after_file_open_model_writes_a_new_project_not_the_opened_one(demo_scene, x_server, tmp_path):
+    """A project is open; File > Open model (the system's dialog picks another model) replaces the scene, and the X
+    screen shows that model; Ctrl+S then writes a new project holding it, read back from the file, and the project
+    opened first is left byte for byte as it was (it was rewritten with the other model)."""
+    import torch
+
+    from app.project import FileRef, ModelEntry, Project, open_project, save_project
+    from tests.viewer_harness import file_dialog_answering
+    from training.model.ply_io import read_ply, write_ply
+
+    _, _, model = demo_scene
+    g = read_ply(model)
+    other = tmp_path / "other.ply"
+    write_ply(other, g.subset(torch.arange(0, len(g), 2)))
+    project = save_project(tmp_path / "first.splatproj", Project([ModelEntry(FileRef(model), "scene")]))
+    before = project.read_bytes()
+    found = run_gui(PRELUDE + LOOK + f"""
+import pickle
+from imgui_bundle import imgui
+app = ViewerApp(Paths(out=str(OUT / "out")), project={str(project)!r})
+
+def test(ctx):
+    wait(ctx, lambda: app.view is not None and app.view.has_model(0), 60, "the project's model")
+    open_window(ctx, "Scene")
+    ctx.item_click("frustums")          # the headless reference has no camera frustums
+    ctx.item_click("stylization path")
+    ctx.set_ref("##MainMenuBar")
+    ctx.menu_click("File/Open model...")
+    wait(ctx, lambda: app.ui.paths.model == {str(other)!r}, 60, "the other model")
+    record("opened", ctx)
+    ctx.key_press(imgui.Key.mod_ctrl | imgui.Key.s)
+    ctx.yield_(3)
+    found["count"] = app.document.editor.count
+
+run(app, test)
+found["project"] = app.ui.project.path
+found["error"] = app.ui.messages.error
+Path(os.environ["RESULT"]).write_text(json.dumps(found))
+""", tmp_path, env={**x11_env(x_server), **file_dialog_answering(tmp_path / "dialog", other)})
+    assert found["error"] == "", found["error"]
+    assert project.read_bytes() == before, "Ctrl+S wrote the other model over the project opened first"
+    assert found["project"] and Path(found["project"]) != project
+    saved, problems = open_project(found["project"])
+    assert problems == [] and [m.file.path for m in saved.models] == [other]
+    assert found["count"] == len(read_ply(other)) and np.array_equal(saved.models[0].kept, np.arange(found["count"]))
+    region = np.load(tmp_path / "opened_region.npy")
+    with open(tmp_path / "opened_camera.pkl", "rb") as f:
+        camera = pickle.load(f)
+    value = psnr(region, headless_render(other, camera))
+    assert value >= 25.0, f"the X screen does not show the model opened (PSNR {value:.1f} dB)"

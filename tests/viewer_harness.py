@@ -51,6 +51,20 @@ def run_gui(script: str, tmp_path: Path, timeout: int = 420, env: dict | None = 
     return json.loads(result_file.read_text())
 
 
+def file_dialog_answering(folder: Path, answer: Path) -> dict:
+    """The environment for a viewer process whose file dialog answers ``answer``, as a user picking that file would:
+    the dialog program imgui-bundle's portable_file_dialogs runs (zenity, found on PATH) is a script in ``folder``
+    that prints the path, and appends how it was asked (its arguments, one a line) to ``folder/dialog_calls.txt``. A
+    test cannot click in another program's window; everything of ours, from the File menu to the path coming back,
+    runs as it does for a user."""
+    folder.mkdir(parents=True, exist_ok=True)
+    script = folder / "zenity"
+    calls = folder / "dialog_calls.txt"
+    script.write_text(f"#!/bin/sh\nprintf '%s\\n' \"$@\" >> '{calls}'\necho '{answer}'\n")
+    script.chmod(0o755)
+    return {"PATH": f"{folder}{os.pathsep}{os.environ.get('PATH', '')}"}
+
+
 def check_screenshot(path: Path) -> None:
     """A real frame: not blank, not uniform, many colours (panels, text, splats)."""
     from training.scene.image_io import read_image
@@ -190,11 +204,30 @@ def open_window(ctx, name):
     ctx.yield_(3)  # let the opened window's layout settle before items are aimed at
 
 
+def progress():
+    \"\"\"What moves while the application works: the run's stage, state and step, and the step the view shows (None
+    before the script has made its app).\"\"\"
+    a = globals().get("app")
+    if a is None or not hasattr(a, "session"):
+        return None
+    s = a.session.status()
+    return (s.stage, s.state, s.step, a.ui.training.shown_step)
+
+
 def wait(ctx, condition, seconds, what):
-    t0 = time.time()
+    \"\"\"Frames until ``condition()`` holds. ``seconds`` is how long nothing may move (``progress``: the run's
+    stage, state and step, the step on screen), not how long the wait may take: on a busy machine every step is
+    slower, and a wait timed from its start failed while the run was still going. So a slow run is waited for, a
+    run that hangs or ended without the condition fails after ``seconds`` of standing still, saying where it
+    stood.\"\"\"
+    last, moved_at = progress(), time.time()
     while not condition():
-        if time.time() - t0 > seconds:
-            raise AssertionError(f"timed out after {seconds} s waiting for {what}")
+        now = progress()
+        if now != last:
+            last, moved_at = now, time.time()
+        elif time.time() - moved_at > seconds:
+            where = "" if now is None else f" (the run: {now[0] or '-'} {now[1]} at step {now[2]}, view at {now[3]})"
+            raise AssertionError(f"nothing moved for {seconds} s waiting for {what}{where}")
         ctx.yield_(2)
         time.sleep(0.02)
 

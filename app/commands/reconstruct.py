@@ -3,10 +3,12 @@
 Writes OUT/point_cloud.ply (standard 3DGS layout), OUT/report.json (metrics and settings), OUT/renders/ and
 OUT/contact_sheet.png (each test view's photo beside its render, and the depth; training/reconstruct/results.py)
 and OUT/checkpoint.pt (every --checkpoint-every iterations, on Ctrl-C and at the end; ``--resume`` continues from
-it). The training resolution comes from the preset's target long side (training/reconstruct/resolution.py); a
-time estimate is printed a tenth into the run, when the first large Gaussians have shrunk, and again whenever it
-moves by more than 20 % (training/reconstruct/time_estimate.py); report.json keeps the first one and the actual
-time.
+it). The checkpoint is kept after a finished run, on purpose: ``--resume --iters N`` extends the run from it and the
+demo's window writes the reconstruction's report from it; it costs about three times the PLY on disk, which --help
+says, so a user who wants only the model deletes it. The training resolution comes from the preset's target long
+side (training/reconstruct/resolution.py); a time estimate is printed a tenth into the run, when the first large
+Gaussians have shrunk, and again whenever it moves by more than 20 % (training/reconstruct/time_estimate.py);
+report.json keeps the first one and the actual time.
 """
 
 from __future__ import annotations
@@ -25,7 +27,10 @@ def register(sub: argparse._SubParsersAction) -> None:
         "reconstruct",
         help="train a 3D Gaussian Splatting model of a scene (3DGS + depth/shape/size regularizers)",
         description="Train a 3DGS model of DATA (a COLMAP folder or a transforms.json scene) into OUT: "
-                    "OUT/point_cloud.ply, OUT/report.json, OUT/checkpoint.pt.",
+                    "OUT/point_cloud.ply, OUT/report.json, OUT/checkpoint.pt. The checkpoint is kept when the run "
+                    "finishes (the model with the optimiser's state, about three times point_cloud.ply's size): "
+                    "--resume --iters N trains on from it, and --resume alone writes the report again; delete it "
+                    "once the model is final (the viewer's reconstructions keep theirs too).",
     )
     p.add_argument("data", metavar="DATA", help="scene: COLMAP folder (images/ + sparse/), or transforms.json")
     p.add_argument("-o", "--output", required=True, metavar="OUT", help="output folder")

@@ -400,6 +400,8 @@ class ViewerApp:
         if doc.editor is not None and not io.want_text_input:
             if chord(ctrl | k.s.value):
                 ui.messages.guarded("save project", self.save_project)
+            elif chord(ctrl | shift | k.s.value):
+                ui.messages.guarded("save project as", files.save_project_as, doc, self.session, ui)
             elif chord(ctrl | k.z.value):
                 doc.undo()
             elif chord(ctrl | k.y.value) or chord(ctrl | shift | k.z.value):

@@ -129,16 +129,20 @@ class Document:
         return self.source is not None and bool(self.models.parts)
 
     def edited(self) -> bool:
-        """Deleted, cropped or hidden Gaussians: the model shown is not the file."""
+        """The model shown is not the opened file as read: Gaussians deleted, cropped, hidden or moved, or other
+        models joined to the scene (a stylization starts from what is shown, not from the first file)."""
         return self.editor is not None and self.source is not None and (
-            len(self.editor.index) != len(self.source) or bool(self.editor.hidden.any()))
+            len(self.models.parts) > 1 or len(self.editor.index) != len(self.source)
+            or bool(self.editor.hidden.any()))
 
     # ------------------------------------------------------------------ opening
     def open(self, path) -> None:
-        """The model file at ``path`` as the scene's only model (the history starts afresh)."""
+        """The model file at ``path`` as the scene's only model (the history starts afresh). The scene is no
+        longer an opened project's: its models not shown and its embedded files are not carried into it."""
         p = Path(path)
         g = read_model(p)
         self._open_read(p, g, FileRef(p, file_sha256(p)))
+        self.carried, self.project_source = [], None
 
     def _open_read(self, path: Path, g, ref: FileRef) -> None:
         self.source = g
@@ -468,21 +472,37 @@ class Document:
         """Open the project at ``path``: every model whose files are there, unchanged and fitting its edits, joined
         into one scene with its rows, selection, hidden flags, transform and colour edits (embedded ones copied to
         ``models_folder`` first); the dataset, painting and camera path. The others are carried, one line each.
-        InputError (one line) when the file is not a project."""
+        InputError (one line) when the file is not a project.
+
+        The project is opened into a document of its own, which this one becomes only once it has opened: a
+        project that fails part-way (any error) leaves this document as it was, so nothing the user had is lost,
+        and the next save does not write a half-opened scene over the project it came from."""
+        fresh = Document()
+        # what the project does not name stays as it is (a project without a painting keeps the one open)
+        fresh.dataset, fresh.cameras, fresh.painting = self.dataset, self.cameras, self.painting
+        opened = fresh._read_project(path, models_folder)
+        for name in ("editor", "source", "models", "live", "original", "dataset", "cameras", "painting",
+                     "camera_path", "carried", "project_source"):
+            setattr(self, name, getattr(fresh, name))
+        return opened
+
+    def _read_project(self, path, models_folder: Path) -> Opened:
         project, problems = open_project(path)
         opened = Opened(project, list(problems))
-        self.editor, self.source, self.models, self.live = None, None, SceneModels(), False
         self.carried, self.project_source = [], project.source
-        self.original = None
         for entry in project.models:
             try:
-                why = self._join(entry, project, models_folder, opened.problems)
+                read = self._entry_model(entry, project, models_folder)
             except InputError as exc:  # its file cannot be read (a damaged member, not a model): the rest opens
-                why = exc.problem
-            if why is not None:
+                read = exc.problem
+            except ValueError as exc:  # a file the reader refused in other words
+                read = _first_line(exc)
+            if isinstance(read, str):
                 self.carried.append(entry)
                 opened.problems.append(f"{entry.file.path}: model '{entry.name}' is in the project but not shown "
-                                       f"({why})")
+                                       f"({read})")
+            else:
+                self._join(entry, project, models_folder, opened.problems, *read)
         if self.editor is not None:
             self.editor.forget_history()
         for ref, fn, what in ((project.dataset, self.open_dataset, "dataset"),
@@ -491,31 +511,38 @@ class Document:
                 try:
                     fn(str(ref.path))
                 except Exception as exc:  # noqa: BLE001  (one line, and the rest of the project still opens)
-                    why = str(exc).strip().splitlines()[0] if str(exc).strip() else type(exc).__name__
-                    opened.problems.append(f"cannot open the {what}: {why}")
+                    opened.problems.append(f"cannot open the {what}: {_first_line(exc)}")
         self.camera_path = project.camera_path.copy()
         return opened
 
-    def _join(self, entry: ModelEntry, project: Project, models_folder: Path, problems: list[str]) -> str | None:
-        """One model of an opened project into the scene (the first opens it); why not, or None."""
-        import torch
-
-        from app.project_bake import merge
-        from training.model.transform import transform_gaussians
-
+    def _entry_model(self, entry: ModelEntry, project: Project, models_folder: Path):
+        """(path, Gaussians, scene file index or None) of a project's model whose edits fit it, or why it cannot
+        be shown (one line). Nothing in the scene changes here, so a model refused leaves it whole."""
         if not entry.usable:
             return "its file is missing or changed"
         fid = next((i for i, f in enumerate(self.models.files) if f.ref.path.resolve() == entry.file.path.resolve()
                     and f.ref.embedded == entry.file.embedded), None)
         path = entry.file.path if fid is None else self.models.files[fid].path
         if fid is None and entry.file.embedded is not None:  # the viewer opens files: embedded ones are copied out
-            path = extract_member(project.source, entry.file.embedded, models_folder / Path(entry.file.embedded).name)
+            path = extract_member(project.source, entry.file.embedded,
+                                  embedded_copy(models_folder, project.source, entry.file.embedded))
         g = read_model(path)
         why = colour_problem(entry, len(g))
         if why is None and entry.kept is not None and len(entry.kept) and int(entry.kept.max()) >= len(g):
             why = "the project keeps rows the model does not have"
-        if why is not None:
-            return why
+        if why is None and entry.kept is not None and len(entry.kept) == 0:
+            why = "the project keeps none of its rows"
+        return why if why is not None else (path, g, fid)
+
+    def _join(self, entry: ModelEntry, project: Project, models_folder: Path, problems: list[str], path: Path, g,
+              fid: int | None) -> None:
+        """One model of an opened project (read and checked by ``_entry_model``) into the scene; the first opens
+        it."""
+        import torch
+
+        from app.project_bake import merge
+        from training.model.transform import transform_gaussians
+
         rows = np.arange(len(g)) if entry.kept is None else entry.kept
         n = len(rows)
         selected = entry.selected if entry.selected is not None and len(entry.selected) == n else np.zeros(n, bool)
@@ -540,24 +567,47 @@ class Document:
             if not np.array_equal(entry.transform, np.eye(4)):
                 w = self.world  # the world is already on the editor's model: the entry's move goes under it
                 self.transform(np.ones(ed.count, bool), w @ entry.transform @ np.linalg.inv(w))
-            return None
+            return
+        moved = transform_gaussians(g.subset(torch.as_tensor(rows, dtype=torch.long)), entry.transform)
+        source = merge([self.source, moved])
         if fid is None:
             fid = self.models.add_file(path, _copy(entry.file), entry.colour, _copy(entry.original), entry.name)
-        moved = transform_gaussians(g.subset(torch.as_tensor(rows, dtype=torch.long)), entry.transform)
         start = self.models.add_part(fid, rows, entry.transform).start
-        self.source = merge([self.source, moved])
+        self.source = source
         ed = self.editor
         ed.model = appended(ed.model, snapshot_arrays(self.in_world(moved)), moved.sh_degree)
         ed.selected = np.concatenate([ed.selected, selected])
         ed.hidden = np.concatenate([ed.hidden, hidden])
         ed.index = np.concatenate([ed.index, start + np.arange(n)])
-        return None
 
     def _pair_project_original(self, ref: FileRef, models_folder: Path, project: Project) -> None:
         path = ref.path
         if ref.embedded is not None:
-            path = extract_member(project.source, ref.embedded, models_folder / Path(ref.embedded).name)
+            path = extract_member(project.source, ref.embedded, embedded_copy(models_folder, project.source,
+                                                                              ref.embedded))
         self.pair_original(path, ref=_copy(ref))
+
+
+def embedded_copy(models_folder: Path, source: Path, member: str) -> Path:
+    """Where the viewer keeps its copy of a project's embedded model: in a folder named after the project and the
+    member's content (its CRC-32 and size, from the zip's directory). Every project names its first model
+    ``models/0-<file name>``: copies by member name alone overwrote another project's, which the runs, the
+    stylizations' originals and the Colour panel still pointed at. The same content lands on the same path."""
+    import zipfile
+
+    try:
+        with zipfile.ZipFile(source) as z:
+            info = z.getinfo(member)
+    except KeyError:
+        raise InputError(source, f"embedded model {member} is not in the project") from None
+    except (zipfile.BadZipFile, OSError) as exc:
+        raise InputError(source, f"embedded model {member} cannot be read ({_first_line(exc)})") from None
+    return models_folder / f"{Path(source).stem}-{info.CRC:08x}-{info.file_size}" / Path(member).name
+
+
+def _first_line(exc: BaseException) -> str:
+    text = str(exc).strip()
+    return text.splitlines()[0] if text else type(exc).__name__
 
 
 def _copy(ref: FileRef | None) -> FileRef | None:

@@ -1,7 +1,11 @@
-"""What File > Open, File > Save project and a file dropped on the window do: open a model, a dataset, a painting
-or a project into the document, join a model to the scene, save the session as a project. Each takes the
-document, the session and the UI state; the 3D view follows at its next frame (a new model is shown and framed,
-a new dataset places the camera at its first view).
+"""What File > Open, File > Save project (Save project as) and a file dropped on the window do: open a model, a
+dataset, a painting or a project into the document, join a model to the scene, save the session as a project.
+Each takes the document, the session and the UI state; the 3D view follows at its next frame (a new model is shown
+and framed, a new dataset places the camera at its first view).
+
+A save never writes over a project the session did not open or save: Save project writes where the session's
+project was opened or last saved, and without one (nothing opened, or a model opened since, which starts a new
+scene) to a free name in the output folder (project.splatproj, project_2.splatproj, ...); Save project as asks.
 """
 
 from __future__ import annotations
@@ -43,6 +47,7 @@ def open_model(doc, session, ui, path: str) -> None:
     _no_run(session, "another model")
     doc.open(path)
     _model_opened(session, ui, path)
+    ui.project.path = ""  # a new scene: the next save must not replace the project opened before it
     ui.messages.say(f"opened {path} ({doc.editor.count} Gaussians)")
 
 
@@ -115,16 +120,27 @@ def open_project(doc, session, ui, path: str) -> None:
     ui.messages.say(f"opened project {path}")
 
 
+def free_project_path(out: Path) -> Path:
+    """``out/project.splatproj``, or ``project_2``, ``project_3``...: the first name no file has (a second viewer
+    session writing to the same folder keeps the first one's project)."""
+    candidate, n = out / "project.splatproj", 1
+    while candidate.exists():
+        n += 1
+        candidate = out / f"project_{n}.splatproj"
+    return candidate
+
+
 def save_project(doc, session, ui, path: str | None = None, layout: str | None = None) -> Path:
-    """The session as a project file (atomically): to ``path``, or where it was opened or saved, or
-    OUTPUT/project.splatproj. ``layout``: the dock layout (default: imgui's, as it is now)."""
+    """The session as a project file (atomically): to ``path``, or where it was opened or saved, or a free name
+    in the output folder (``free_project_path``). ``layout``: the dock layout (default: imgui's, as it is now)."""
     from app.camera_path import keyframe_from
 
     if layout is None:
         from imgui_bundle import imgui
 
         layout = imgui.save_ini_settings_to_memory()
-    target = Path(path or ui.project.path or ui.out_dir() / "project.splatproj")
+    named = bool(path or ui.project.path)
+    target = Path(path or ui.project.path or free_project_path(ui.out_dir()))
     view = ui.view
     camera, distance, up = None, 1.0, np.array([0.0, -1.0, 0.0])
     if view is not None and view.camera is not None:
@@ -136,22 +152,35 @@ def save_project(doc, session, ui, path: str | None = None, layout: str | None =
     # embedded models keep their member names: the file written holds them from now on
     doc.project_source = written
     ui.project.path = str(written)
-    ui.messages.say(f"saved project {written}")
+    ui.messages.say(f"saved project {written}" + ("" if named else " (File > Save project as... chooses the name)"))
     return written
+
+
+def save_project_as(doc, session, ui) -> Path | None:
+    """File > Save project as: a path from the system's save dialog (which asks before replacing a file), then
+    saved there; None when the dialog was cancelled."""
+    start = ui.project.path or str(free_project_path(ui.out_dir()))
+    path = choose_file("Save project as", DIALOG_FILTERS["project"], save=True, start=str(Path(start).absolute()))
+    return save_project(doc, session, ui, path) if path else None
 
 
 def dialogs_available() -> bool:
     return any(shutil.which(t) for t in ("zenity", "kdialog", "qarma", "matedialog"))
 
 
-def choose_file(title: str, filters: list[str]) -> str:
-    """A path from the system's file dialog ('' when cancelled); an error when no dialog program exists."""
+def choose_file(title: str, filters: list[str], save: bool = False, start: str = "") -> str:
+    """A path from the system's file dialog, to open (or with ``save``, to write; the dialog asks before
+    replacing a file), '' when cancelled; an error when no dialog program exists."""
     if not dialogs_available():
         raise ValueError("no file dialog program on this system (zenity or kdialog): type the path in the Scene "
-                         "panel, or drop the file on the window")
+                         "panel, or drop the file on the window" if not save else
+                         "no file dialog program on this system (zenity or kdialog): Ctrl+S saves to a free name "
+                         "in the output folder")
     from imgui_bundle import portable_file_dialogs as pfd
 
-    chosen = pfd.open_file(title, "", filters).result()
+    if save:
+        return pfd.save_file(title, start, filters).result()
+    chosen = pfd.open_file(title, start, filters).result()
     return chosen[0] if chosen else ""
 
 

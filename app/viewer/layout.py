@@ -17,7 +17,7 @@ from imgui_bundle import hello_imgui, imgui
 
 from app.viewer import edit_panel, export_panel, gizmo_panel, select_tools_panel
 from app.viewer.colour_panel import colour_panel
-from app.viewer.files import open_from_dialog, save_project
+from app.viewer.files import open_from_dialog, save_project, save_project_as
 from app.viewer.measure_panel import measure_panel
 from app.viewer.path_panel import path_panel
 from app.viewer.scene_panel import scene_panel
@@ -147,6 +147,8 @@ def menus(doc, session, ui) -> None:
             guarded("open project", open_from_dialog, doc, session, ui, "project")
         if imgui.menu_item("Save project", "Ctrl+S", False)[0]:
             guarded("save project", save_project, doc, session, ui)
+        if imgui.menu_item("Save project as...", "Ctrl+Shift+S", False)[0]:
+            guarded("save project as", save_project_as, doc, session, ui)
         imgui.separator()
         if imgui.menu_item("Quit", "Ctrl+Q", False)[0]:
             quit_app()
@@ -167,7 +169,8 @@ KEYS = [("left drag", "orbit"), ("right / middle drag", "pan"), ("wheel", "zoom"
         ("Q / E", "down / up"), ("Z / C", "roll"), ("N", "snap to the nearest dataset camera"), ("R", "reset view"),
         ("space", "pause / resume training"), ("Ctrl+Z / Ctrl+Y", "undo / redo an edit"),
         ("Delete", "delete the selection"), ("G / T / Y", "gizmo: move / turn / scale (again: off)"),
-        ("Ctrl+S", "save the project"), ("Ctrl+Q", "quit (a run saves, as on closing the window)"),
+        ("Ctrl+S", "save the project"), ("Ctrl+Shift+S", "save the project as..."),
+        ("Ctrl+Q", "quit (a run saves, as on closing the window)"),
         ("H or F1", "this help")]
 
 

@@ -72,8 +72,9 @@ def start_stylization(doc, session, ui) -> None:
     if doc.edited() and not (t.continue_last_run and t.runs):
         from training.model.ply_io import write_ply
 
-        # the stylization starts from what the user sees: the model after the deletes and crops, kept in the
-        # run's own folder (it is that run's original, for style strength; a later run writes its own)
+        # the stylization starts from what the user sees: the model after the deletes and crops, with the models
+        # added to the scene, as one model kept in the run's own folder (it is that run's original, for style
+        # strength; a later run writes its own); the region's mask is over these rows
         model = run / "edited_model.ply"
         model.parent.mkdir(parents=True, exist_ok=True)
         write_ply(model, doc.edited_gaussians())
@@ -85,8 +86,9 @@ def start_stylization(doc, session, ui) -> None:
 
 
 def stylizing(session) -> bool:
-    """A stylization stage is running (its settings change live)."""
-    return session.running and session.trainer is not None and session.status().stage == "stylize"
+    """A stylization stage is running or loading (its settings change live; while it loads they are kept for the
+    stylizer being built, not given to the trainer of the stage before it)."""
+    return session.running and session.status().stage == "stylize"
 
 
 def region_mask(doc, ui) -> np.ndarray | None:

@@ -8,7 +8,10 @@ and reads, without ever blocking on a step: the events the trainer emits and the
 A run is a list of stages (``Stage``): reconstruct, then stylize, or either alone. Each stage builds its trainer
 inside the thread (loading a scene or VGG takes seconds, and the window must stay live meanwhile), steps it to the
 end, and saves its outputs. Stop, window close and Ctrl-C save too: a reconstruction writes its checkpoint and PLY,
-a stylization its current model; an exception in the trainer becomes one line in the UI and the session goes on.
+a stylization its current model (also when the stop comes during its final colour transfer: a save cancelled part
+way saves again, quickly, what there is, and the stage's further outputs and the next stage are skipped); an
+exception in the trainer becomes one line in the UI and the session goes on. Settings given while a stage's
+trainer is being built are kept for that trainer (``update_config``), never handed to the last stage's.
 
 The session never sleeps the trainer: sharing the CPU with the view is the view's business (it limits how much of
 the time it spends drawing while a trainer runs; see view3d.py).
@@ -82,6 +85,10 @@ class LiveSession:
         self._paused = False
         self._pause_at: int | None = None
         self._step_times: deque[float] = deque(maxlen=20)
+        # while a stage builds its trainer, ``_trainer`` is still the last stage's (or the last run's): settings
+        # given meanwhile wait here for the trainer being built (they are the new run's, not the old trainer's)
+        self._building = False
+        self._pending_config: dict[str, Any] = {}
         self.saved: list[Path] = []
         self.history: deque[dict[str, float]] = deque(maxlen=history)  # step metrics, for the curves
 
@@ -96,7 +103,11 @@ class LiveSession:
         self.history.clear()
         self._thread = threading.Thread(target=self._run, args=(list(stages),), name="splatstyler-trainer",
                                         daemon=True)
-        self._set(state="loading", error="", step=0, total=0)
+        with self._lock:
+            self._building, self._pending_config = True, {}
+            self._status.stage = stages[0].name if stages else ""
+        self._set(state="loading", error="", step=0, total=0, last_metrics={}, steps_per_second=0.0,
+                  seconds_left=None)
         self._thread.start()
 
     def pause(self) -> None:
@@ -144,10 +155,26 @@ class LiveSession:
         """Hand settings to the running trainer: it takes them between two steps, on the training thread, into the
         config its next step reads. They were validated where they entered (a slider's config, a command line);
         here only what the running trainer cannot take is refused, as one line: a setting it does not have, or one
-        fixed when it started (``FIXED_AT_START``). None when handed over."""
-        trainer = self._trainer
-        if trainer is None or not self.running:
+        fixed when it started (``FIXED_AT_START``). None when handed over.
+
+        While a stage is loading (its trainer not built yet) the settings are kept for that trainer: it starts with
+        them (they are checked then, and a refusal is an "error" message)."""
+        if not self.running:
             return "no trainer is running"
+        with self._lock:
+            if self._building:
+                self._pending_config.update(changes)
+                return None
+            trainer = self._trainer
+        if trainer is None:
+            return "no trainer is running"
+        refusal = self._config_refusal(trainer, changes)
+        if refusal:
+            return refusal
+        self._commands.put(("config", dict(changes), trainer))
+        return None
+
+    def _config_refusal(self, trainer, changes: dict[str, Any]) -> str | None:
         config = trainer.config
         unknown = sorted(set(changes) - {f.name for f in fields(config)})
         if unknown:
@@ -157,7 +184,6 @@ class LiveSession:
         if fixed:
             return (f"{', '.join(fixed)} can only be set before the {self._status.stage} starts (start a new run to "
                     f"change {'it' if len(fixed) == 1 else 'them'})")
-        self._commands.put(("config", dict(changes), trainer))
         return None
 
     def close(self, timeout: float = 600.0) -> None:
@@ -276,6 +302,8 @@ class LiveSession:
         try:
             self._run_stages(stages)
         finally:
+            with self._lock:
+                self._building = False
             self._trainer_gone()
 
     def _trainer_gone(self) -> None:
@@ -295,6 +323,10 @@ class LiveSession:
                 break
             with self._lock:
                 self._status.stage = stage.name
+                self._building = True
+                # the last stage's figures are not this one's (a panel reading them would take a reconstruction's
+                # for the stylization's)
+                self._status.last_metrics, self._status.step, self._status.total = {}, 0, 0
             self._out.put(SessionMessage("stage", stage.name, stage.name))
             # each stage's curves start afresh: a stylization's steps count from 0 again, and its "loss" joined to
             # the reconstruction's drew a line back across the plot
@@ -304,25 +336,28 @@ class LiveSession:
             try:
                 trainer = stage.build(previous)
                 trainer.add_listener(self._on_event)
-                self._trainer = trainer
+                with self._lock:
+                    self._trainer, self._building = trainer, False
+                    pending, self._pending_config = self._pending_config, {}
+                self._take_pending(stage, trainer, pending)
                 self._set(state="paused" if self._paused else "running", total=trainer.total_iters,
                           step=getattr(trainer, "step_count", getattr(trainer, "iteration", 0)))
                 self._train(trainer)
                 finished = trainer.done
                 self._calls_before_save()
                 self._set(state="finishing")
-                previous = stage.save(trainer, finished, self._stop.is_set)
+                try:
+                    previous = stage.save(trainer, finished, self._stop.is_set)
+                except Cancelled:  # stopped during the stage's long final passes: what there is, saved quickly
+                    finished, previous = False, stage.save(trainer, False, lambda: True)
                 if previous is not None:
                     self._out.put(SessionMessage("saved", str(previous), stage.name))
                     self.saved.append(Path(str(previous)))
-                if finished and stage.outputs is not None:
-                    self._stage_outputs(stage, trainer, previous)
-                if not finished:
+                if not finished or self._stop.is_set():  # a stop during the save: no outputs, no next stage
                     self._set(state="stopped")
                     return
-            except Cancelled:
-                self._set(state="stopped")
-                return
+                if stage.outputs is not None:
+                    self._stage_outputs(stage, trainer, previous)
             except Exception as exc:  # one line in the UI; the window and the session go on
                 line = _one_line(exc)
                 self._set(state="error", error=line)
@@ -336,7 +371,22 @@ class LiveSession:
                     except Exception as exc2:  # noqa: BLE001  (the first error is the one to show)
                         self._out.put(SessionMessage("error", f"could not save: {_one_line(exc2)}", stage.name))
                 return
+            finally:
+                with self._lock:
+                    self._building = False
         self._set(state="finished" if not self._stop.is_set() else "stopped")
+
+    def _take_pending(self, stage: Stage, trainer, pending: dict[str, Any]) -> None:
+        """Settings given while the trainer was being built: its config takes them before its first step."""
+        taken = {}
+        for name, value in pending.items():  # each on its own: one the trainer cannot take does not stop the rest
+            refusal = self._config_refusal(trainer, {name: value})
+            if refusal:
+                self._out.put(SessionMessage("error", refusal, stage.name))
+            else:
+                taken[name] = value
+        if taken:
+            trainer.config = replace(trainer.config, **taken)
 
     def _stage_outputs(self, stage: Stage, trainer, saved) -> None:
         """A finished stage's further outputs; their failure is one line, and the model saved and the next stage

@@ -1,10 +1,12 @@
 """The stages a live session runs: reconstruction and stylization, built and saved as the CLI builds and saves them.
 
-A reconstruction stage writes OUT/checkpoint.pt (resumable with ``splatstyler reconstruct --resume``) and
-OUT/point_cloud.ply, whether it finished or was stopped; a stylization stage writes OUT/point_cloud.ply, after the
-post colour transfer when it finished, as it stands when stopped, and then also OUT/stylize_checkpoint.pt
-(resumable with ``splatstyler stylize ... --resume``). Both hand the PLY's path to the next stage. The
-checkpoints hold the fingerprint of their inputs (training/scene/fingerprint.py), which a resume checks.
+A reconstruction stage writes OUT/checkpoint.pt (resumable with ``splatstyler reconstruct --resume``; kept when it
+finished, as the CLI keeps it) and OUT/point_cloud.ply, whether it finished or was stopped; a stylization stage
+writes OUT/point_cloud.ply, after the post colour transfer when it finished, as it stands when stopped (a stop
+during the colour transfer keeps the finished stylization without the transfer), and then also
+OUT/stylize_checkpoint.pt (resumable with ``splatstyler stylize ... --resume``). Both hand the PLY's path to the
+next stage. The checkpoints hold the fingerprint of their inputs (training/scene/fingerprint.py), which a resume
+checks.
 
 ``outputs`` (Stage.outputs) writes the rest of what the command line writes once a stage has finished (the demo's
 window: report.json, renders, contact sheets). For it a reconstruction measures the model it starts from and keeps
@@ -27,13 +29,18 @@ def reconstruct_stage(data: str | Path, out: str | Path, preset: str = "quick", 
     out = Path(out)
     report_extra: dict[str, Any] = {}  # what the CLI's report measures before the first step (with ``outputs``)
     started: list[float] = []
+    fingerprint: dict[str, Any] = {}  # the data as the run read it (a save must not read the data folder again)
 
     def build(_previous):
         from training.reconstruct.trainer import ReconstructConfig, Reconstructor
         from training.scene.loader import load_scene
 
         from training.reconstruct.resolution import training_downscale
+        from training.scene.fingerprint import dataset_fingerprint, make_fingerprint
 
+        # at the start, as the CLI takes it: the checkpoint names the data the run was made from, and a save (Stop,
+        # window close) still works when the data folder has moved or gone since
+        fingerprint.update(make_fingerprint(dataset=dataset_fingerprint(data)))
         extra = dict(overrides)
         iterations = extra.pop("iterations", None)
         cfg = ReconstructConfig.from_preset(preset, **extra)
@@ -57,13 +64,12 @@ def reconstruct_stage(data: str | Path, out: str | Path, preset: str = "quick", 
     def save(trainer, finished: bool, cancel) -> Path:
         from training.model.ply_io import write_ply
         from training.reconstruct.checkpoint import CHECKPOINT_NAME, save_checkpoint
-        from training.scene.fingerprint import dataset_fingerprint, make_fingerprint
 
         out.mkdir(parents=True, exist_ok=True)
         # the data's fingerprint, as the CLI's checkpoints hold it: `reconstruct --resume` checks it; the time and
         # the first measures, which its report gives
         save_checkpoint(out / CHECKPOINT_NAME,
-                        {**trainer.state_dict(), "fingerprint": make_fingerprint(dataset=dataset_fingerprint(data)),
+                        {**trainer.state_dict(), "fingerprint": dict(fingerprint),
                          "elapsed": time.perf_counter() - started[0], "report_extra": dict(report_extra)})
         write_ply(out / "point_cloud.ply", trainer.export_gaussians())
         return out / "point_cloud.ply"
@@ -94,10 +100,16 @@ def stylize_stage(data: str | Path, style: str | Path, out: str | Path, config=N
                         mask=mask)
 
     def save(trainer, finished: bool, cancel) -> Path:
+        from training.core.messages import Cancelled
         from training.model.ply_io import write_ply
 
         if finished and not trainer.finished:
-            trainer.finish(cancel=cancel)
+            try:
+                trainer.finish(cancel=cancel)
+            except Cancelled:
+                # stopped during the post colour transfer: the stylization itself is done and is kept, as the
+                # model without the transfer and a checkpoint (`stylize --resume` applies the transfer)
+                finished = False
         out.mkdir(parents=True, exist_ok=True)
         write_ply(out / "point_cloud.ply", trainer.stylized_gaussians())
         if not finished:  # stopped: `splatstyler stylize ... --resume` can continue it, as it continues the CLI's

@@ -44,7 +44,8 @@ def set_stylize(session, ui, **changes) -> None:
 def style_panel(doc, session, ui) -> None:
     below_painting = painting(doc, session, ui)
     cfg = ui.training.stylize
-    live = session.running and session.status().stage == "stylize"
+    status = session.status()
+    live = session.running and status.stage == "stylize"
     changed, i = imgui.combo("stylize", REGIONS.index(ui.edit.region), ["every Gaussian", "only the selection",
                                                                         "all but the selection"])
     if changed:
@@ -80,12 +81,12 @@ def style_panel(doc, session, ui) -> None:
     summary = f": {cfg.preset}, {cfg.view_order} order, {cfg.schedule}" if live else ""
     if imgui.collapsing_header(f"Fixed at the start{summary}###fixed at the start"):
         fixed_settings(session, ui, cfg, live)
-    trainer = session.trainer
-    if live and trainer is not None:
-        u = trainer.utilisation()
-        if u:
-            imgui.text(f"last plan: utilisation {u.get('utilisation', float('nan')):.3f}, "
-                       f"column entropy {u.get('column_entropy', float('nan')):.3f}")
+    # from the session's status (this stage's last step), not the trainer: while the stylization loads, the
+    # session's trainer is still the reconstruction's, which has no plan
+    plan = status.last_metrics if live else {}
+    if "utilisation" in plan:
+        imgui.text(f"last plan: utilisation {plan['utilisation']:.3f}, "
+                   f"column entropy {plan.get('column_entropy', float('nan')):.3f}")
     ui.window.style_settings_h = imgui.get_cursor_pos_y() - below_painting  # the painting leaves them room
 
 
