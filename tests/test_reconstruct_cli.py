@@ -133,3 +133,30 @@ def test_bench_reconstruct_reports_phases(demo_folder, capsys):
     assert min(rows[0][f"ms_{k}"] for k in ("rasterize", "loss", "backward")) > 0
     assert rows[0]["it_per_s"] == pytest.approx(1e3 / rows[0]["ms_total"])
     assert 3 * rows[0]["ms_total"] < wall_ms  # the 3 timed iterations ran inside the call
+    # the phases apart (SSIM and each regularizer apart from the loss), summing to the step with "other"
+    from training.reconstruct.trainer import PHASES
+
+    assert {"ssim", "shape", "size", "depth", "checks"} <= set(PHASES)
+    assert min(rows[0][f"ms_{k}"] for k in ("ssim", "shape", "size", "depth", "checks")) > 0
+    assert sum(rows[0][f"ms_{k}"] for k in (*PHASES, "other")) == pytest.approx(rows[0]["ms_total"])
+    # and the cpu rasterizer's own stages, its backward's inside the step's backward
+    raster = {k[len("ms_raster_"):]: v for k, v in rows[0].items() if k.startswith("ms_raster_")}
+    assert {"project", "sort", "sh", "composite", "composite_bwd", "project_sh_bwd"} <= set(raster)
+    assert raster["composite_bwd"] + raster["project_sh_bwd"] <= rows[0]["ms_backward"]
+
+
+@pytest.mark.slow
+def test_bench_reconstruct_from_a_checkpoint(demo_folder, tmp_path, capsys):
+    """--checkpoint times the steps that follow a run's checkpoint: its model, optimiser and schedule position."""
+    out = tmp_path / "run"
+    rc, _ = _run([demo_folder, "-o", out, "--iters", "20", "--max-gaussians", "700"], capsys)
+    assert rc == 0
+    n = json.loads((out / "report.json").read_text())["num_gaussians"]
+    rc = main(["bench", "reconstruct", "--scene", str(demo_folder), "--checkpoint", str(out / "checkpoint.pt"),
+               "--iters", "3", "--warmup", "1", "--backends", "cpu", "--json"])
+    assert rc == 0
+    rows = [json.loads(line) for line in capsys.readouterr().out.splitlines() if line.startswith("{")]
+    assert rows[0]["steps"] == "22-24" and rows[0]["size"] == "64x48"
+    assert rows[0]["gaussians_end"] == n  # densification stopped before step 20 of 20: the model as saved
+    rc = main(["bench", "reconstruct", "--checkpoint", str(out / "checkpoint.pt"), "--iters", "1"])
+    assert rc == 2 and "--scene" in capsys.readouterr().err
