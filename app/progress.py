@@ -35,6 +35,12 @@ class ProgressBar:
         self.postfix = postfix or {}
         self.bar = None
         self._psnr_ema: float | None = None
+        self._shown: dict[str, str] = {}  # what ``show`` set, kept beside the step's metrics
+
+    def show(self, label: str, text: str) -> None:
+        """Keep ``label``: ``text`` in the bar's line from now on (a measure taken now and then, such as the test
+        views' PSNR)."""
+        self._shown[label] = text
 
     def __call__(self, event: TrainerEvent) -> None:
         if event.kind != "step":
@@ -57,7 +63,7 @@ class ProgressBar:
                         self._psnr_ema = value if self._psnr_ema is None else 0.9 * self._psnr_ema + 0.1 * value
                         value = self._psnr_ema
                     shown[label] = int(value) if float(value).is_integer() else f"{value:.4g}"
-            self.bar.set_postfix(shown, refresh=False)
+            self.bar.set_postfix({**shown, **self._shown}, refresh=False)
         self.bar.update(max(0, event.step - self.bar.n))
 
     def close(self) -> None:

@@ -69,6 +69,9 @@ def register(sub: argparse._SubParsersAction) -> None:
                         "it) instead of stopping")
     p.add_argument("--checkpoint-every", type=int, default=1000, metavar="N",
                    help="save OUT/checkpoint.pt every N iterations (0: only on Ctrl-C and at the end)")
+    p.add_argument("--eval-every", type=int, default=None, metavar="N",
+                   help="score the test views every N iterations: the progress line shows their PSNR and "
+                        "report.json keeps the curve (test_curve); default: a tenth of the run, 0: never")
     p.add_argument("--seed", type=int, default=None, help="random seed (default 0)")
     add_run_flags(p, progress="no progress bar (the time estimates are still printed)",
                   resume="continue from OUT/checkpoint.pt (its settings, with --iters allowed to extend the run); it must have "
@@ -211,6 +214,14 @@ def run(args) -> int:
 
     from app.progress import ProgressBar, say_above_bars
 
+    eval_every = args.eval_every if args.eval_every is not None else max(1, cfg.iterations // 10)
+    if eval_every < 0:
+        raise InputError(None, f"--eval-every must be at least 0 (0: never), got {eval_every}")
+    if not scene.test_indices:
+        eval_every = 0
+    curve = list(report_extra.get("test_curve", []))  # a resumed run's points so far
+    eval_seconds = float(report_extra.get("test_curve_seconds", 0.0))
+
     # said a tenth into the run, again when densification or other jobs move it by more than 20 %
     estimate = RunEstimate(ReconstructSteps(trainer), say=say_above_bars, what="training")
     trainer.add_listener(estimate)
@@ -222,6 +233,14 @@ def run(args) -> int:
         trainer.add_listener(bar)
         while not trainer.done:
             trainer.step()
+            if eval_every and (trainer.step_count % eval_every == 0 or trainer.done):
+                t_eval = time.perf_counter()
+                point = trainer.evaluate(scene.test_indices)
+                curve.append({"iteration": trainer.step_count, "psnr": point["psnr"], "ssim": point["ssim"]})
+                eval_seconds += time.perf_counter() - t_eval
+                report_extra["test_curve"], report_extra["test_curve_seconds"] = curve, eval_seconds
+                bar.show("test", f"{point['psnr']:.2f} dB")
+                estimate.not_a_step()
             if args.checkpoint_every > 0 and trainer.step_count % args.checkpoint_every == 0:
                 checkpoint()
     except KeyboardInterrupt:
