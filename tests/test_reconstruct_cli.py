@@ -160,3 +160,17 @@ def test_bench_reconstruct_from_a_checkpoint(demo_folder, tmp_path, capsys):
     assert rows[0]["gaussians_end"] == n  # densification stopped before step 20 of 20: the model as saved
     rc = main(["bench", "reconstruct", "--checkpoint", str(out / "checkpoint.pt"), "--iters", "1"])
     assert rc == 2 and "--scene" in capsys.readouterr().err
+
+
+def test_eval_every_scores_the_test_views_into_the_report(demo_folder, tmp_path, capsys):
+    """--eval-every N: the test views' PSNR every N iterations (and at the end), kept in report.json; the last point
+    is the report's own test PSNR."""
+    out = tmp_path / "curve"
+    rc, _ = _run([demo_folder, "-o", out, "--iters", "12", "--eval-every", "5"], capsys)
+    assert rc == 0
+    report = json.loads((out / "report.json").read_text())
+    assert [p["iteration"] for p in report["test_curve"]] == [5, 10, 12]
+    assert report["test_curve"][-1]["psnr"] == pytest.approx(report["test_psnr"])
+    assert 0 < report["test_curve_seconds"] < report["seconds"]
+    rc, cap = _run([demo_folder, "-o", tmp_path / "bad", "--iters", "2", "--eval-every", "-1"], capsys)
+    assert rc == 2 and "--eval-every" in cap.err and not (tmp_path / "bad").exists()

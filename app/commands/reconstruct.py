@@ -148,6 +148,8 @@ def run(args) -> int:
     from training.scene.fingerprint import InputsChanged, check_same_inputs, dataset_fingerprint, make_fingerprint
 
     _one_line_warnings()
+    if args.eval_every is not None and args.eval_every < 0:
+        raise InputError(None, f"--eval-every must be at least 0 (0: never), got {args.eval_every}")
     out = Path(args.output)
     if out.exists() and not out.is_dir():
         raise InputError(out, "the output path exists and is not a folder")
@@ -215,8 +217,6 @@ def run(args) -> int:
     from app.progress import ProgressBar, say_above_bars
 
     eval_every = args.eval_every if args.eval_every is not None else max(1, cfg.iterations // 10)
-    if eval_every < 0:
-        raise InputError(None, f"--eval-every must be at least 0 (0: never), got {eval_every}")
     if not scene.test_indices:
         eval_every = 0
     curve = list(report_extra.get("test_curve", []))  # a resumed run's points so far
