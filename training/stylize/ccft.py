@@ -68,7 +68,7 @@ def _chunk_rows(chunk_elements: int, row_size: int) -> int:
 # product's worst-case error, BF16_REL_ERROR * |x| * max |z| (inputs rounded to 8 bits, 2^-8 on a product of two;
 # the output rounded, 2^-9; float32 accumulation): no feature outside the candidates can then be in the top k.
 # Rows that are not certified are searched again in float32.
-CANDIDATES_PER_K = 8
+CANDIDATES_PER_K = 4
 MIN_CANDIDATES = 64
 BF16_REL_ERROR = 0.0065
 
@@ -138,28 +138,46 @@ def support_matrix(indices: torch.Tensor, values: torch.Tensor, m: int) -> torch
         return torch.sparse_csr_tensor(crow, indices.reshape(-1), values.reshape(-1), size=(n, m))
 
 
-class _GatheredRowDot(torch.autograd.Function):
-    """V[i, k] = <X[i], Y[idx[i, k]]> as sparse products, never materialising Y[idx] (n, K, C).
+def _numba_rows(*tensors: torch.Tensor) -> bool:
+    """Whether the support's row products run on support_cpu's kernels: float32 CPU tensors."""
+    return all(t.device.type == "cpu" and t.dtype == torch.float32 for t in tensors)
 
-    Forward: a sampled matrix product on the support; backward: dX = A Y and dY = A^T X with A the (n, m) sparse
-    matrix of the incoming gradient on the support."""
+
+class _GatheredRowDot(torch.autograd.Function):
+    """V[i, k] = <X[i], Y[idx[i, k]]> without materialising Y[idx] (n, K, C).
+
+    Forward: the dot products on the support; backward: dX = A Y and dY = A^T X with A the (n, m) sparse matrix of
+    the incoming gradient on the support. On the CPU in float32: support_cpu's kernels, else sparse products."""
 
     @staticmethod
     def forward(ctx, X: torch.Tensor, Y: torch.Tensor, idx: torch.Tensor) -> torch.Tensor:
         n, k = idx.shape
+        ctx.save_for_backward(X, Y, idx)
+        if _numba_rows(X, Y):
+            from training.stylize.support_cpu import gather_dot
+
+            out = torch.empty((n, k), dtype=torch.float32)
+            gather_dot(X.detach().numpy(), Y.detach().numpy(), idx.numpy(), out.numpy())
+            return out
         pattern = support_matrix(idx, torch.zeros(n * k, dtype=X.dtype, device=X.device), Y.shape[0])
         with warnings.catch_warnings():
             warnings.simplefilter("ignore")
-            out = torch.sparse.sampled_addmm(pattern, X, Y.t(), beta=0.0).values().view(n, k)
-        ctx.save_for_backward(X, Y, idx)
-        return out
+            return torch.sparse.sampled_addmm(pattern, X, Y.t(), beta=0.0).values().view(n, k)
 
     @staticmethod
     def backward(ctx, grad: torch.Tensor):
         X, Y, idx = ctx.saved_tensors
-        A = support_matrix(idx, grad.contiguous(), Y.shape[0])
-        gX = A @ Y if ctx.needs_input_grad[0] else None
-        gY = A.t() @ X if ctx.needs_input_grad[1] else None
+        grad = grad.contiguous()
+        gX = gY = None
+        if ctx.needs_input_grad[0] and _numba_rows(grad, Y):
+            from training.stylize.support_cpu import gather_add
+
+            gX = torch.empty_like(X)
+            gather_add(grad.numpy(), Y.detach().numpy(), idx.numpy(), gX.numpy())
+        elif ctx.needs_input_grad[0]:
+            gX = support_matrix(idx, grad, Y.shape[0]) @ Y
+        if ctx.needs_input_grad[1]:
+            gY = support_matrix(idx, grad, Y.shape[0]).t() @ X
         return gX, gY, None
 
 
@@ -293,8 +311,13 @@ def _ccft(X, Y, guide, k, epsilon, tau, lambda_guide, iters, chunk_elements, sin
     t0 = time.perf_counter()
     column_mass = torch.zeros(m, dtype=torch.float64, device=X.device).index_add_(0, indices.reshape(-1),
                                                                                    plan.reshape(-1))
-    transport = support_matrix(indices, plan.to(Xn.dtype), m)
-    guide_next = l2_normalise(transport.t() @ Xn.detach()).detach()  # (m, C): sum_i T_ij x_i, normalised
+    if _numba_rows(Xn):
+        from training.stylize.support_cpu import scatter_add
+
+        landed = torch.from_numpy(scatter_add(plan.numpy(), Xn.detach().numpy(), indices.numpy(), m))
+    else:
+        landed = support_matrix(indices, plan.to(Xn.dtype), m).t() @ Xn.detach()
+    guide_next = l2_normalise(landed).detach()  # (m, C): sum_i T_ij x_i, normalised
     timings["guide"] = time.perf_counter() - t0
 
     util, entropy, entropy_norm = column_statistics(column_mass, reachable)
