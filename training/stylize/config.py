@@ -7,7 +7,7 @@ from dataclasses import dataclass
 
 from training.scene.scene import Camera
 from training.stylize import defaults as D
-from training.stylize.defaults import (FORWARD_ITERS_PER_VIEW, FORWARD_MIN_TOTAL, LOSSES, ORBIT_ITERS_PER_VIEW,
+from training.stylize.defaults import (CONTENT_NORMS, MAX_STYLE_SCALE, FORWARD_ITERS_PER_VIEW, FORWARD_MIN_TOTAL, LOSSES, ORBIT_ITERS_PER_VIEW,
                                        ORBIT_ITERS_PER_VIEW_MANY, ORBIT_MANY_VIEWS, PAPER_MAX_SIDE, PARAMS, PRESETS,
                                        QUICK_ITER_FRACTION, QUICK_MAX_SIDE, SCENE_KINDS, SCHEDULES,
                                        STANDARD_MAX_SIDE, VIEW_ORDERS)
@@ -20,7 +20,8 @@ DEFAULT_LR = D.LR
 # the rule a value must meet; a value outside the span but within the rule (from the CLI) is kept, not clamped.
 RANGES: dict[str, tuple[float, float, bool]] = {
     "tau": (0.01, 10.0, True), "epsilon": (0.005, 0.5, True), "lambda_guide": (0.0, 10.0, False),
-    "lambda_content": (0.0, 0.1, False), "lambda_style": (0.0, 100.0, False), "lr": (0.001, 0.1, True),
+    "lambda_content": (0.0, 10.0, False), "style_scale": (0.5, 8.0, True), "lambda_tv": (0.0, 100.0, False),
+    "lr_final": (0.01, 1.0, True), "lambda_style": (0.0, 100.0, False), "lr": (0.001, 0.1, True),
     "k": (1, 64, False), "iters_per_view": (0, 100, False), "virtual_views": (0, 4, False)}
 
 
@@ -36,7 +37,12 @@ class StylizeConfig:
     sinkhorn_iters: int = D.SINKHORN_ITERS
     lambda_style: float | None = None  # None: DEFAULT_LAMBDA_STYLE[loss] (30 for CCFT)
     lambda_content: float = D.LAMBDA_CONTENT
+    content_norm: str = "relative"  # relative: ||X - X^||^2 / ||X^||^2 | mse: ARF's mean (objective.py)
+    style_scale: float = D.STYLE_SCALE  # the painting's long side / the render's (stroke size)
+    lambda_tv: float = D.LAMBDA_TV  # total variation of the render
     lr: float | None = None  # Adam learning rate of sh0 (shN: lr / 20); None: DEFAULT_LR
+    lr_final: float = D.LR_FINAL  # the rate decays exponentially to lr * lr_final at the last iteration
+    measure_balance: bool = True  # the style and content gradients' norms on the render, every step
     iters_per_view: int | None = None
     min_total_iters: int | None = None
     scene_kind: str = "auto"  # auto | forward | 360
@@ -64,11 +70,16 @@ class StylizeConfig:
             raise ValueError(f"schedule must be one of {', '.join(SCHEDULES)}, got {self.schedule!r}")
         if self.scene_kind not in SCENE_KINDS:
             raise ValueError(f"unknown scene kind {self.scene_kind!r}; expected auto, forward or 360")
+        if self.content_norm not in CONTENT_NORMS:
+            raise ValueError(f"content_norm must be one of {', '.join(CONTENT_NORMS)}, got {self.content_norm!r}")
         if self.params not in PARAMS:  # worded "<field> ..." so the CLI can name the flag
             raise ValueError(f"params must be one of {', '.join(PARAMS)}, got {self.params!r}")
         checks = [("k", self.k >= 1, "at least 1"), ("epsilon", self.epsilon > 0, "positive"),
                   ("tau", self.tau > 0, "positive"), ("sinkhorn_iters", self.sinkhorn_iters >= 1, "at least 1"),
                   ("lambda_content", self.lambda_content >= 0, "at least 0"),
+                  ("style_scale", 0 < self.style_scale <= MAX_STYLE_SCALE, f"in (0, {MAX_STYLE_SCALE:g}]"),
+                  ("lambda_tv", self.lambda_tv >= 0, "at least 0"),
+                  ("lr_final", 0 < self.lr_final <= 1, "in (0, 1]"),
                   ("lr", self.lr is None or self.lr > 0, "positive"),
                   ("virtual_views", self.virtual_views >= 0, "at least 0"),
                   ("lambda_guide", self.lambda_guide >= 0, "at least 0"),

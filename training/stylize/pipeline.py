@@ -201,6 +201,8 @@ def stylize_to_folder(model: Path, data: Path, style: Path, out: Path, config: S
             **{f"{k}_ratio_end_to_start": distance_end[k] / v if v > 0 else None for k, v in distance_start.items()},
         },
         "utilisation": utilisation,
+        # ||content gradient|| / ||style gradient|| on the render over the run (objective.py)
+        "gradient_balance": gradient_balance(stylizer.history),
         # each step's plan against the previous step's, where it saw another view (Stylizer.step_agreement)
         "step_match_agreement": stylizer.step_agreement(),
         "metrics": measured,
@@ -224,6 +226,19 @@ def stylize_to_folder(model: Path, data: Path, style: Path, out: Path, config: S
         f.write("\n")
     ckpt_path.unlink(missing_ok=True)  # the run is whole: nothing left to resume, and checkpoints are large
     return report
+
+
+def gradient_balance(history: list[dict]) -> dict[str, Any] | None:
+    """The content-to-style gradient ratio on the render (training/stylize/objective.py) over the steps that measured
+    it: first, last, median, and the mean of each norm; None where no step did."""
+    rows = [h for h in history if h.get("grad_style") and h.get("grad_content") is not None]
+    if not rows:
+        return None
+    ratios = [h["grad_content"] / h["grad_style"] for h in rows]
+    return {"content_to_style_first": ratios[0], "content_to_style_last": ratios[-1],
+            "content_to_style_median": float(np.median(ratios)),
+            "grad_style_mean": float(np.mean([h["grad_style"] for h in rows])),
+            "grad_content_mean": float(np.mean([h["grad_content"] for h in rows])), "steps": len(rows)}
 
 
 def before_after_sheet(stylizer: Stylizer, renders: list, style_image: np.ndarray) -> np.ndarray:
