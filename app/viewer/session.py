@@ -82,6 +82,7 @@ class LiveSession:
         self._paused = False
         self._pause_at: int | None = None
         self._step_times: deque[float] = deque(maxlen=20)
+        self._taking_calls = False  # under _lock: submit() queues only while the thread will still answer
         self.saved: list[Path] = []
         self.history: deque[dict[str, float]] = deque(maxlen=history)  # step metrics, for the curves
 
@@ -97,6 +98,8 @@ class LiveSession:
         self._thread = threading.Thread(target=self._run, args=(list(stages),), name="splatstyler-trainer",
                                         daemon=True)
         self._set(state="loading", error="", step=0, total=0)
+        with self._lock:
+            self._taking_calls = True
         self._thread.start()
 
     def pause(self) -> None:
@@ -134,10 +137,11 @@ class LiveSession:
         the latest when its stage ends and before the stage saves; once the next stage has begun it is refused
         (the Future's exception says so), never run on the next stage's trainer."""
         trainer = self._trainer
-        if not self.running or trainer is None:
-            raise ValueError("no trainer is running")
         future: Future = Future()
-        self._commands.put(("call", fn, future, trainer, self._status.stage))
+        with self._lock:  # not between the thread's last look at the queue and its end: nobody would answer
+            if not self.running or trainer is None or not self._taking_calls:
+                raise ValueError("no trainer is running")
+            self._commands.put(("call", fn, future, trainer, self._status.stage))
         return future
 
     def update_config(self, **changes: Any) -> str | None:
@@ -280,6 +284,8 @@ class LiveSession:
 
     def _trainer_gone(self) -> None:
         """The run is over: calls still queued will never run; their futures say so (nobody waits forever)."""
+        with self._lock:
+            self._taking_calls = False
         while True:
             try:
                 command = self._commands.get_nowait()
