@@ -37,7 +37,7 @@ def read_npy(f: IO[bytes], size: int,
         raise ValueError("empty" if size == 0 else f"{size} bytes, too short for a .npy header")
     magic = _read_exact(f, len(MAGIC) + 2, "signature")
     if magic[:len(MAGIC)] != MAGIC:
-        what = " (it is a zip, as .npz files are)" if magic.startswith(b"PK") else ""
+        what = ": it is a zip, as .npz files are" if magic.startswith(b"PK") else ""
         raise ValueError(f"it does not start with \\x93NUMPY{what}")
     version = (magic[-2], magic[-1])
     if version not in ((1, 0), (2, 0), (3, 0)):
