@@ -108,6 +108,9 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--force", action="store_true",
                    help="with --resume: when the checkpoint was made from other inputs, start afresh instead of "
                         "stopping")
+    p.add_argument("--overwrite", action="store_true",
+                   help="start afresh in an OUT that holds an interrupted stylization's stylize_checkpoint.pt, "
+                        "replacing it (without --resume or --overwrite such an OUT is refused, exit 2)")
     add_run_flags(p, progress="no progress bar (the time estimates are still printed)",
                   resume="continue the interrupted stylization in OUT (OUT/stylize_checkpoint.pt); it must have been "
                          "made from these inputs and fixed settings, else exit 2")
@@ -160,7 +163,7 @@ def run(args: argparse.Namespace) -> int:
                                    vgg_weights=args.vgg_weights, listener=listener, mask=mask,
                                    log=lambda line: print(line, flush=True),
                                    metrics=None if args.no_metrics else Measure(args.metric_pairs),
-                                   resume=args.resume, force=args.force,
+                                   resume=args.resume, force=args.force, overwrite=args.overwrite,
                                    warn=lambda line: print(f"splatstyler: warning: {line}", file=sys.stderr),
                                    report_extra=lambda: {"time_estimate": estimate.record()})
     finally:

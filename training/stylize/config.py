@@ -3,7 +3,11 @@ imply: iterations per view and in all, and the render resolution."""
 
 from __future__ import annotations
 
+import math
+import numbers
 from dataclasses import dataclass
+
+import numpy as np
 
 from training.scene.scene import Camera
 from training.stylize import defaults as D
@@ -23,6 +27,13 @@ RANGES: dict[str, tuple[float, float, bool]] = {
     "lambda_content": (0.0, 10.0, False), "style_scale": (0.5, 8.0, True), "lambda_tv": (0.0, 100.0, False),
     "lr_final": (0.01, 1.0, True), "lambda_style": (0.0, 100.0, False), "lr": (0.001, 0.1, True),
     "k": (1, 64, False), "iters_per_view": (0, 100, False), "virtual_views": (0, 4, False)}
+
+
+# the fields by kind, each checked by ``validate`` (a None in OPTIONAL means "from the preset / the paper")
+WHOLE_NUMBERS = ("k", "sinkhorn_iters", "iters_per_view", "min_total_iters", "seed", "virtual_views", "max_side")
+NUMBERS = ("tau", "epsilon", "lambda_guide", "lambda_style", "lambda_content", "lr", "style_scale", "lambda_tv", "lr_final")
+FLAGS = ("dc_only", "color_transfer", "measure_balance")
+OPTIONAL = ("iters_per_view", "min_total_iters", "max_side", "lambda_style", "lr")
 
 
 @dataclass
@@ -60,6 +71,22 @@ class StylizeConfig:
     background: tuple[float, float, float] = (0.0, 0.0, 0.0)
 
     def validate(self) -> None:
+        for name in WHOLE_NUMBERS:  # a project's JSON may hold 4.0 or 1e400 where a command line's int could not
+            v = getattr(self, name)
+            if not (v is None and name in OPTIONAL) and (isinstance(v, bool) or not isinstance(v, numbers.Integral)):
+                raise ValueError(f"{name} must be a whole number, got {v!r}")
+        for name in NUMBERS:
+            v = getattr(self, name)
+            if not (v is None and name in OPTIONAL) and (isinstance(v, bool) or not isinstance(v, numbers.Real)
+                                                        or not math.isfinite(v)):
+                raise ValueError(f"{name} must be a finite number, got {v!r}")
+        for name in FLAGS:
+            if not isinstance(getattr(self, name), (bool, np.bool_)):
+                raise ValueError(f"{name} must be true or false, got {getattr(self, name)!r}")
+        bg = self.background
+        if (not isinstance(bg, (tuple, list)) or len(bg) != 3
+                or not all(isinstance(c, numbers.Real) and not isinstance(c, bool) and 0 <= c <= 1 for c in bg)):
+            raise ValueError(f"background must be 3 numbers in [0, 1], got {bg!r}")
         if self.loss not in LOSSES:
             raise ValueError(f"unknown loss {self.loss!r}; expected one of {', '.join(LOSSES)}")
         if self.preset not in PRESETS:

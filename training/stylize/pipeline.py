@@ -39,7 +39,7 @@ def choose_downscale(data: Path, max_side: int) -> int:
 def stylize_to_folder(model: Path, data: Path, style: Path, out: Path, config: StylizeConfig,
                       vgg_weights: str | None = None, listener=None, log=None, mask=None,
                       metrics: Callable[[Stylizer], dict[str, Any]] | None = None, resume: bool = False,
-                      force: bool = False, warn: Callable[[str], None] | None = None,
+                      force: bool = False, overwrite: bool = False, warn: Callable[[str], None] | None = None,
                       report_extra: Callable[[], dict[str, Any]] | None = None) -> dict[str, Any]:
     """Run the job and return the report (also written to OUT/report.json). ``listener`` receives the stylizer's
     events (training/core/messages.py); ``log`` (a str -> None callable) gets one line describing the run, and
@@ -52,7 +52,8 @@ def stylize_to_folder(model: Path, data: Path, style: Path, out: Path, config: S
     OUT/point_cloud.ply and OUT/stylize_checkpoint.pt before it goes on up; once the iterations and the post
     colour transfer are done, both are saved before the metrics and renders. ``resume`` continues from that
     checkpoint (InputsChanged, exit 2, when it was made from other inputs, unless ``force``: then afresh); the
-    checkpoint is removed once the report is written."""
+    checkpoint is removed once the report is written, so one found without ``resume`` is an interrupted run's:
+    InputError unless ``overwrite`` (a fresh run would replace it at its first save)."""
     from training.core.atomic_write import atomic_open, check_output_dir, make_output_dir
     from training.scene.fingerprint import InputsChanged, check_same_inputs
     from training.scene.image_io import write_image
@@ -73,9 +74,12 @@ def stylize_to_folder(model: Path, data: Path, style: Path, out: Path, config: S
     if out.exists() and not out.is_dir():
         raise InputError(out, "output exists and is not a folder")
     check_output_dir(out)
+    ckpt_path = out / CHECKPOINT_NAME
+    if not resume and not overwrite and ckpt_path.is_file():
+        raise InputError(ckpt_path, "holds an interrupted stylization's checkpoint: continue it with --resume, or "
+                                    "start afresh with --overwrite (which replaces it)")
     style_image = load_style_image(style)  # first: a bad painting should not cost a scene load
     gaussians = read_model(model)
-    ckpt_path = out / CHECKPOINT_NAME
     fingerprint = stylize_fingerprint(model, data, style, config, mask)
     state = None
     if resume:
