@@ -22,6 +22,7 @@ import json
 import math
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import Iterator
 
 import numpy as np
 
@@ -101,8 +102,14 @@ class CameraPath:
     loop: bool = False
 
     def validate(self, name=None) -> None:
+        """A path a video can be made of: keyframes, and ``validate_timing``'s limits."""
         if not self.keyframes:
             raise InputError(name, "a camera path needs at least one keyframe")
+        self.validate_timing(name)
+
+    def validate_timing(self, name=None) -> None:
+        """Duration and fps within the limits, checked whether or not there are keyframes yet (a project's empty
+        path gets keyframes in the viewer and is rendered with the timing it came with)."""
         if not (math.isfinite(self.duration) and self.duration > 0):
             raise InputError(name, f"duration must be a positive number of seconds, got {self.duration}")
         if not (math.isfinite(self.fps) and 0 < self.fps <= MAX_FPS):
@@ -160,7 +167,12 @@ class CameraPath:
 
     def cameras(self, width: int | None = None, height: int | None = None) -> list[Camera]:
         """Every frame's camera."""
-        return [self.camera_at(float(t), width, height) for t in self.frame_times()]
+        return list(self.iter_cameras(width, height))
+
+    def iter_cameras(self, width: int | None = None, height: int | None = None) -> Iterator[Camera]:
+        """Every frame's camera, one at a time (the viewer's video makes each as its frame is rendered)."""
+        for t in self.frame_times():
+            yield self.camera_at(float(t), width, height)
 
     # ------------------------------------------------------------------ files
     def to_dict(self) -> dict:
@@ -197,6 +209,10 @@ class CameraPath:
             data = json.loads(path.read_text())
         except (ValueError, UnicodeDecodeError) as exc:
             raise InputError(path, f"not valid JSON ({str(exc).splitlines()[0]})") from None
+        except RecursionError:
+            raise InputError(path, "nests its JSON too deeply to be a camera path") from None
+        except OSError as exc:
+            raise InputError(path, f"cannot read: {exc.strerror or exc}") from None
         return cls.from_dict(data, path)
 
 

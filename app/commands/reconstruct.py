@@ -34,7 +34,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     )
     p.add_argument("data", metavar="DATA", help="scene: COLMAP folder (images/ + sparse/), or transforms.json")
     p.add_argument("-o", "--output", required=True, metavar="OUT", help="output folder")
-    p.add_argument("--preset", choices=PRESETS, default="quick",
+    p.add_argument("--preset", choices=PRESETS, default=None,
                    help="quick: minutes on a CPU (long side at most 400 px, 5000 iterations); standard: 7000 "
                         "iterations, long side at most 1000 px; paper: 3DGS's 30k iterations at full resolution, "
                         "for a GPU (default: quick)")
@@ -67,6 +67,9 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--force", action="store_true",
                    help="with --resume: when OUT/checkpoint.pt was made from other data, start afresh (replacing "
                         "it) instead of stopping")
+    p.add_argument("--overwrite", action="store_true",
+                   help="start afresh in an OUT that holds an interrupted run's checkpoint.pt, replacing it (without "
+                        "--resume or --overwrite such an OUT is refused, exit 2: nothing is lost by mistake)")
     p.add_argument("--checkpoint-every", type=int, default=1000, metavar="N",
                    help="save OUT/checkpoint.pt every N iterations (0: only on Ctrl-C and at the end)")
     p.add_argument("--eval-every", type=int, default=None, metavar="N",
@@ -74,16 +77,27 @@ def register(sub: argparse._SubParsersAction) -> None:
                         "report.json keeps the curve (test_curve); default: a tenth of the run, 0: never")
     p.add_argument("--seed", type=int, default=None, help="random seed (default 0)")
     add_run_flags(p, progress="no progress bar (the time estimates are still printed)",
-                  resume="continue from OUT/checkpoint.pt (its settings, with --iters allowed to extend the run); it must have "
-                         "been made from this DATA, else exit 2")
+                  resume="continue from OUT/checkpoint.pt with its settings: --iters may extend the run and "
+                         "--backend change the rasterizer; any other setting given must be the checkpoint's, and "
+                         "the checkpoint must have been made from this DATA, else exit 2")
     p.set_defaults(func=run)
 
 
-def _config(args):
+# the flags that set ReconstructConfig fields (their dests); a resumed run takes its settings from the checkpoint,
+# and of these only RESUME_MAY_CHANGE may differ from them there
+CONFIG_FLAGS = ("preset", "iters", "downscale", "max_side", "max_gaussians", "densify_grad", "prune_screen", "depth",
+                "mono_depth_model", "no_shape", "no_size", "no_depth", "backend", "background", "seed")
+RESUME_MAY_CHANGE = ("iters", "backend")  # a longer run; another rasterizer (the run may go on elsewhere)
+
+
+def _config(args, base=None):
+    """The settings the flags give: on the preset's (``base``: on those, the flags not given leaving them)."""
+    import copy
+
     from training.core.errors import InputError
     from training.reconstruct.trainer import ReconstructConfig
 
-    cfg = ReconstructConfig.from_preset(args.preset)
+    cfg = ReconstructConfig.from_preset(args.preset or "quick") if base is None else copy.deepcopy(base)
     if args.iters is not None:
         cfg = cfg.with_iterations(args.iters)
     if args.downscale is not None and args.max_side is not None:
@@ -106,11 +120,14 @@ def _config(args):
         cfg.densify.prune_screen = args.prune_screen
     if args.depth is not None:
         cfg.depth = args.depth
-    cfg.mono_depth_model = args.mono_depth_model
-    cfg.use_shape = not args.no_shape
-    cfg.use_size = not args.no_size
-    cfg.use_depth = not args.no_depth
+    if args.mono_depth_model is not None:
+        cfg.mono_depth_model = args.mono_depth_model
+    if args.no_shape:
+        cfg.use_shape = False
+    if args.no_size:
+        cfg.use_size = False
     if args.no_depth:
+        cfg.use_depth = False
         cfg.depth = "none"  # no targets to compute (--depth mono would otherwise run the depth model for nothing)
     if args.backend is not None:
         cfg.backend = args.backend
@@ -119,6 +136,70 @@ def _config(args):
     if args.seed is not None:
         cfg.seed = args.seed
     return cfg
+
+
+def _resumed_config(args, saved):
+    """The checkpoint's settings ``saved`` with --iters and --backend applied; InputError naming each other flag
+    given whose value is not the checkpoint's (dropping it silently would train with settings nobody asked for)."""
+    from training.core.errors import InputError
+
+    differ = []
+    for dest in CONFIG_FLAGS:
+        value = getattr(args, dest)
+        if dest in RESUME_MAY_CHANGE or value is None or value is False:
+            continue
+        flag = "--" + dest.replace("_", "-") + ("" if value is True else f" {value}")
+        if dest == "preset":
+            if value != saved.preset:
+                differ.append(f"{flag} (it has {saved.preset})")
+            continue
+        alone = argparse.Namespace(**{d: (False if d.startswith("no_") else None) for d in CONFIG_FLAGS})
+        setattr(alone, dest, value)
+        changed = _changes(saved.to_dict(), _config(alone, saved).to_dict())
+        if changed:
+            differ.append(f"{flag} (it has {', '.join(changed)})")
+    if differ:
+        raise InputError(Path(args.output) / "checkpoint.pt",
+                         f"--resume continues with the checkpoint's settings, and {'; '.join(differ)}: drop "
+                         f"{'that flag' if len(differ) == 1 else 'those flags'}, or start afresh with --overwrite")
+    # set, not stretched as a fresh run's --iters is: the densification schedule the run has followed stays
+    if args.iters is not None:
+        saved.iterations = args.iters
+    if args.backend is not None:
+        saved.backend = args.backend
+    return saved
+
+
+def _changes(before: dict, after: dict, prefix: str = "") -> list[str]:
+    """``name value`` of each setting (nested ones dotted) whose value in ``after`` differs, as ``before`` has it."""
+    out = []
+    for key, old in before.items():
+        new = after.get(key)
+        if isinstance(old, dict) and isinstance(new, dict):
+            out += _changes(old, new, f"{prefix}{key}.")
+        elif new != old:
+            out.append(f"{prefix}{key} {old}")
+    return out
+
+
+def _check_no_interrupted_run(ckpt_path: Path) -> None:
+    """InputError when ``ckpt_path`` holds a checkpoint a fresh run would replace at its first save: an interrupted
+    run's, or one that cannot be read (what it holds is not known). A finished run's is replaced with its model, as
+    a new run into its folder asks."""
+    from training.core.errors import InputError
+    from training.reconstruct.checkpoint import load_checkpoint
+
+    if not ckpt_path.is_file():
+        return
+    try:
+        state = load_checkpoint(ckpt_path, mmap=True)  # its step and settings only: the tensors stay on disk
+        step, total = int(state["step"]), int(state["config"]["iterations"])
+    except (InputError, KeyError, TypeError, ValueError):
+        raise InputError(ckpt_path, "holds a checkpoint that cannot be read: start afresh with --overwrite (which "
+                                    "replaces it), or move it away") from None
+    if step < total:
+        raise InputError(ckpt_path, f"holds an interrupted run's checkpoint (iteration {step} of {total}): continue "
+                                    "it with --resume, or start afresh with --overwrite (which replaces it)")
 
 
 def _one_line_warnings() -> None:
@@ -158,6 +239,8 @@ def run(args) -> int:
     # the data only: a resumed run takes its settings from the checkpoint, so they cannot differ from it
     fingerprint = make_fingerprint(dataset=dataset_fingerprint(args.data))
     state = None
+    if not args.resume and not args.overwrite:
+        _check_no_interrupted_run(ckpt_path)
     if args.resume:
         state = load_checkpoint(ckpt_path)
         try:
@@ -171,9 +254,7 @@ def run(args) -> int:
         if warning:
             print(f"splatstyler: warning: {warning}", file=sys.stderr)
     if state is not None:
-        cfg = ReconstructConfig.from_dict(state["config"])
-        if args.iters is not None:
-            cfg.iterations = args.iters
+        cfg = _resumed_config(args, ReconstructConfig.from_dict(state["config"]))
     else:
         cfg = _config(args)
     if cfg.iterations < 1:

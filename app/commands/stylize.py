@@ -56,9 +56,23 @@ def register(sub: argparse._SubParsersAction) -> None:
                    help="style loss weight (default: " + ", ".join(f"{v:g} for {k}" for k, v in D.LAMBDA_STYLE.items())
                         + ")")
     p.add_argument("--lambda-content", type=float, default=D.LAMBDA_CONTENT,
-                   help=f"content loss weight ({D.LAMBDA_CONTENT})")
+                   help=f"content loss weight: how much of the scene's structure the stylization keeps "
+                        f"(default {D.LAMBDA_CONTENT:g}, in the unit of --content-norm)")
+    p.add_argument("--content-norm", choices=D.CONTENT_NORMS, default="relative",
+                   help="the content loss's unit: relative (default): the squared feature error over the content "
+                        "features' energy, the same balance at every size; mse: the mean over channels and "
+                        "positions, ARF's code, where the paper's weight is 0.005")
+    p.add_argument("--style-scale", type=float, default=D.STYLE_SCALE,
+                   help=f"stroke size: the painting's long side as a multiple of the render's (default "
+                        f"{D.STYLE_SCALE:g}; 1 is ARF's and the paper's, where at small renders the painting's "
+                        f"features are whole motifs)")
+    p.add_argument("--lambda-tv", type=float, default=D.LAMBDA_TV,
+                   help=f"total-variation weight on the render (default {D.LAMBDA_TV:g})")
     p.add_argument("--lr", type=float, default=None,
                    help=f"Adam learning rate of the DC colour (default {D.LR})")
+    p.add_argument("--lr-final", type=float, default=D.LR_FINAL,
+                   help=f"the learning rate decays exponentially to --lr times this at the last iteration "
+                        f"(default {D.LR_FINAL:g})")
     p.add_argument("--iters-per-view", type=int, default=None,
                    help="iterations per view, in all (default: the paper's schedule for the scene kind)")
     p.add_argument("--min-total-iters", type=int, default=None, help="at least this many iterations in all")
@@ -94,6 +108,9 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--force", action="store_true",
                    help="with --resume: when the checkpoint was made from other inputs, start afresh instead of "
                         "stopping")
+    p.add_argument("--overwrite", action="store_true",
+                   help="start afresh in an OUT that holds an interrupted stylization's stylize_checkpoint.pt, "
+                        "replacing it (without --resume or --overwrite such an OUT is refused, exit 2)")
     add_run_flags(p, progress="no progress bar (the time estimates are still printed)",
                   resume="continue the interrupted stylization in OUT (OUT/stylize_checkpoint.pt); it must have been "
                          "made from these inputs and fixed settings, else exit 2")
@@ -146,7 +163,7 @@ def run(args: argparse.Namespace) -> int:
                                    vgg_weights=args.vgg_weights, listener=listener, mask=mask,
                                    log=lambda line: print(line, flush=True),
                                    metrics=None if args.no_metrics else Measure(args.metric_pairs),
-                                   resume=args.resume, force=args.force,
+                                   resume=args.resume, force=args.force, overwrite=args.overwrite,
                                    warn=lambda line: print(f"splatstyler: warning: {line}", file=sys.stderr),
                                    report_extra=lambda: {"time_estimate": estimate.record()})
     finally:

@@ -56,11 +56,13 @@ def path_panel(doc, session, ui) -> None:
             imgui.pop_id()
             break
         imgui.pop_id()
-    changed, seconds = imgui.slider_float("seconds", float(path.duration), 1.0, 60.0)
+    # a value typed into a slider (Ctrl+click) is held to its range, as dragging is
+    clamp = imgui.SliderFlags_.always_clamp
+    changed, seconds = imgui.slider_float("seconds", float(path.duration), 1.0, 60.0, "%.3f", clamp)
     if changed:
         path.duration = seconds
         ui.requests.overlays = True
-    changed, fps = imgui.slider_int("fps", int(round(path.fps)), 10, 60)
+    changed, fps = imgui.slider_int("fps", int(round(path.fps)), 10, 60, "%d", clamp)
     if changed:
         path.fps = float(fps)
     changed, path.loop = imgui.checkbox("loop", path.loop)

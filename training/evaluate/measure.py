@@ -93,7 +93,8 @@ def measure_images(stylized: Sequence[np.ndarray], depths: Sequence[np.ndarray],
                    original: Sequence[np.ndarray | None], original_pre_ct: Sequence[np.ndarray | None] | None,
                    cameras, order: Sequence[int], painting: np.ndarray, lpips=None, taps: VGGTaps | None = None,
                    long_gap: int = LONG_GAP, style_views: int | None = STYLE_VIEWS,
-                   max_pairs: int | None = None, lpips_pairs: int | None = LPIPS_PAIRS) -> dict[str, float | None]:
+                   max_pairs: int | None = None, lpips_pairs: int | None = LPIPS_PAIRS,
+                   style_scale: float = 1.0) -> dict[str, float | None]:
     """Every metric for one stylized scene; lists indexed like ``cameras``: ``stylized`` (H, W, 3) renders in
     [0, 1], their expected depths ``depths`` (H, W, 1) and ``alphas`` (H, W, 1), ``original`` renders with the
     input colours, ``original_pre_ct`` with the colours after the pre colour transfer (None: no colour transfer).
@@ -131,7 +132,7 @@ def measure_images(stylized: Sequence[np.ndarray], depths: Sequence[np.ndarray],
         image = np.asarray(stylized[i])[..., :3]
         h, w = image.shape[:2]
         if max(h, w) not in painting_stats:
-            painting_stats[max(h, w)] = taps_stats(taps(painting_for(painting, w, h)))
+            painting_stats[max(h, w)] = taps_stats(taps(painting_for(painting, w, h, style_scale)))
         reference = painting_stats[max(h, w)]
         t_styl, t_orig = taps(image), taps(np.asarray(original[i])[..., :3])
         per_view["stylized"].append(style_distances(t_styl, reference))
@@ -258,7 +259,7 @@ def measure_stylizer(stylizer, lpips=None, taps: VGGTaps | None = None, original
     out = measure_images([img[..., :3] for img, _ in styl], [img[..., 3:] for img, _ in styl],
                          [a for _, a in styl], orig, pre, cameras, order, stylizer.style_image,
                          lpips=lpips, taps=taps, long_gap=long_gap, style_views=style_views, max_pairs=max_pairs,
-                         lpips_pairs=lpips_pairs)
+                         lpips_pairs=lpips_pairs, style_scale=cfg.style_scale)
     out.update(match_agreement([img[..., :3] for img, _ in styl], [img[..., 3:] for img, _ in styl],
                                [a for _, a in styl], cameras, order,
                                lambda image: stylizer.features(image.to(stylizer.device)), stylizer.style_features,

@@ -25,13 +25,14 @@ def save_checkpoint(path: str | Path, state: dict) -> None:
         torch.save({"format": FORMAT, "version": VERSION, "state": state}, tmp)
 
 
-def load_checkpoint(path: str | Path) -> dict:
-    """The state saved by :func:`save_checkpoint`; InputError when the file is missing or not a checkpoint."""
+def load_checkpoint(path: str | Path, mmap: bool = False) -> dict:
+    """The state saved by :func:`save_checkpoint`; InputError when the file is missing or not a checkpoint.
+    ``mmap``: the tensors are mapped, not read (for a look at its step and settings)."""
     path = Path(path)
     if not path.is_file():
         raise InputError(path, "no checkpoint here (nothing to resume; run without --resume to start fresh)")
     try:
-        blob = torch.load(path, map_location="cpu", weights_only=True)
+        blob = torch.load(path, map_location="cpu", weights_only=True, mmap=mmap)
     except Exception as exc:  # truncated, foreign or tampered files all surface differently from torch
         raise InputError(path, f"not a readable checkpoint ({type(exc).__name__}: {str(exc).splitlines()[0]})"
                          ) from None

@@ -16,7 +16,12 @@ LAMBDA_GUIDE = 1.0
 # Algorithm 1 leaves the Sinkhorn iteration count open; 50 reaches a plan that no longer changes at float32.
 SINKHORN_ITERS = 50
 LAMBDA_CCFT = 30.0
-LAMBDA_CONTENT = 0.005
+LAMBDA_CONTENT = 0.005 * 800  # placeholder during the sweep: the paper's 0.005 in the relative unit
+CONTENT_NORMS = ("relative", "mse")
+STYLE_SCALE = 1.0
+MAX_STYLE_SCALE = 16.0
+LAMBDA_TV = 0.0
+LR_FINAL = 1.0
 
 LOSSES = ("ccft", "nnfm", "gram")
 # Style weight per loss. NNFM's loss is also a mean cosine distance per rendered feature, on the same scale as
