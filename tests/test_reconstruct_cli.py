@@ -228,3 +228,37 @@ def test_a_fresh_run_does_not_replace_an_interrupted_runs_checkpoint(demo_folder
     assert rc == 0 and "resuming" not in cap.err
     rc, _ = _run([demo_folder, "-o", out, "--iters", "4"], capsys)  # over a finished run: its files are replaced
     assert rc == 0 and json.loads((out / "report.json").read_text())["iterations"] == 4
+
+
+def test_stop_when_flat_ends_the_run_and_keeps_the_best_model(demo_folder, tmp_path, capsys, monkeypatch):
+    """--stop-when-flat N: once densification has stopped (step 30 of 60 here), the run ends when the test views'
+    PSNR has not risen by 0.05 dB for N iterations, and the best-scoring model is the one written, saying so."""
+    from training.reconstruct.trainer import Reconstructor
+
+    real = Reconstructor.evaluate
+    kept = {}
+
+    def evaluate(self, indices):
+        result = real(self, indices)
+        step = self.step_count
+        if not kept.get("final"):  # the scores during the run: rising to step 40, then falling
+            result["psnr"] = 20.0 + 0.1 * min(step, 40) - 0.2 * max(0, step - 40)
+            if step == 40:
+                kept["params"] = {k: v.detach().clone() for k, v in self.gaussians.parameters().items()}
+        return result
+
+    monkeypatch.setattr(Reconstructor, "evaluate", evaluate)
+    out = tmp_path / "flat"
+    rc, cap = _run([demo_folder, "-o", out, "--iters", "60", "--eval-every", "5", "--stop-when-flat", "10"],
+                   capsys)
+    assert rc == 0, cap.err
+    report = json.loads((out / "report.json").read_text())
+    assert report["iterations"] == 50 and [p["iteration"] for p in report["test_curve"]][-1] == 50
+    assert report["early_stop"]["stopped_at"] == 50 and report["early_stop"]["best_iteration"] == 40
+    assert report["early_stop"]["kept"] == "best"
+    assert "stopped at iteration 50 of 60" in cap.err and "kept the model of iteration 40" in cap.err
+    written = read_ply(out / "point_cloud.ply")
+    for name, value in kept["params"].items():
+        torch.testing.assert_close(getattr(written, name), value, rtol=1e-6, atol=1e-6)
+    rc, cap = _run([demo_folder, "-o", tmp_path / "bad", "--iters", "2", "--stop-when-flat", "-1"], capsys)
+    assert rc == 2 and "--stop-when-flat" in cap.err

@@ -75,6 +75,11 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--eval-every", type=int, default=None, metavar="N",
                    help="score the test views every N iterations: the progress line shows their PSNR and "
                         "report.json keeps the curve (test_curve); default: a tenth of the run, 0: never")
+    p.add_argument("--stop-when-flat", type=int, default=0, metavar="N",
+                   help="once densification has stopped, end the run when the test views' PSNR (scored every "
+                        "--eval-every iterations) has not risen by 0.05 dB for N iterations, and keep the model "
+                        "that scored best; chosen on the test views themselves, so the report's test figures are "
+                        "then optimistic (default 0: off)")
     p.add_argument("--seed", type=int, default=None, help="random seed (default 0)")
     add_run_flags(p, progress="no progress bar (the time estimates are still printed)",
                   resume="continue from OUT/checkpoint.pt with its settings: --iters may extend the run and "
@@ -231,6 +236,8 @@ def run(args) -> int:
     _one_line_warnings()
     if args.eval_every is not None and args.eval_every < 0:
         raise InputError(None, f"--eval-every must be at least 0 (0: never), got {args.eval_every}")
+    if args.stop_when_flat < 0:
+        raise InputError(None, f"--stop-when-flat must be at least 0 (0: off), got {args.stop_when_flat}")
     out = Path(args.output)
     if out.exists() and not out.is_dir():
         raise InputError(out, "the output path exists and is not a folder")
@@ -302,6 +309,11 @@ def run(args) -> int:
         eval_every = 0
     curve = list(report_extra.get("test_curve", []))  # a resumed run's points so far
     eval_seconds = float(report_extra.get("test_curve_seconds", 0.0))
+    flat = _FlatWatch(args.stop_when_flat, cfg.densify.stop) if args.stop_when_flat else None
+    if flat is not None and not eval_every:
+        print("splatstyler: warning: --stop-when-flat needs test views scored during the run (--eval-every, and a "
+              "scene with test views): it is off", file=sys.stderr)
+        flat = None
 
     # said a tenth into the run, again when densification or other jobs move it by more than 20 %
     estimate = RunEstimate(ReconstructSteps(trainer), say=say_above_bars, what="training")
@@ -322,6 +334,9 @@ def run(args) -> int:
                 report_extra["test_curve"], report_extra["test_curve_seconds"] = curve, eval_seconds
                 bar.show("test", f"{point['psnr']:.2f} dB")
                 estimate.not_a_step()
+                if flat is not None and flat.see(trainer.step_count, point["psnr"], trainer):
+                    bar.show("stopped", f"flat since {flat.best_iteration}")
+                    break
             if args.checkpoint_every > 0 and trainer.step_count % args.checkpoint_every == 0:
                 checkpoint()
     except KeyboardInterrupt:
@@ -335,6 +350,8 @@ def run(args) -> int:
         return stop_signals.exit_code()
     bar.close()
     seconds = elapsed + (time.perf_counter() - t_start)
+    if flat is not None:
+        report_extra["early_stop"] = flat.finish(trainer, curve, say=lambda line: print(line, file=sys.stderr))
     checkpoint()
     timing = estimate.record()
     if timing["first_estimate_s"] is not None:
@@ -381,6 +398,52 @@ def run(args) -> int:
           f"{fmt(test['psnr'], '.2f')} dB, SSIM {fmt(test['ssim'], '.3f')}, LPIPS {fmt(report['test_lpips'], '.3f')}"
           f"; renders in {out / 'renders'}, contact sheet {out / 'contact_sheet.png'}", file=sys.stderr)
     return 0
+
+
+class _FlatWatch:
+    """--stop-when-flat: after densification stops (before it the model grows and the opacity reset dips the
+    curve), the iteration of the last rise by MIN_GAIN of the test views' PSNR and a copy of the best-scoring model;
+    ``see`` says when ``patience`` iterations have passed without such a rise."""
+
+    MIN_GAIN = 0.05  # dB
+
+    def __init__(self, patience: int, after: int):
+        self.patience, self.after = int(patience), int(after)
+        self.best_psnr = self.rise_psnr = None
+        self.best_iteration = self.rise_iteration = None
+        self.best_params = None
+        self.stopped_at = None
+
+    def see(self, iteration: int, psnr: float, trainer) -> bool:
+        if iteration <= self.after or psnr is None:
+            return False
+        if self.best_psnr is None or psnr > self.best_psnr:
+            self.best_psnr, self.best_iteration = psnr, iteration
+            self.best_params = {k: v.detach().clone() for k, v in trainer.gaussians.parameters().items()}
+        if self.rise_psnr is None or psnr >= self.rise_psnr + self.MIN_GAIN:
+            self.rise_psnr, self.rise_iteration = psnr, iteration
+        if iteration - self.rise_iteration >= self.patience and not trainer.done:
+            self.stopped_at = iteration
+            return True
+        return False
+
+    def finish(self, trainer, curve: list, say) -> dict:
+        """Keep the best-scoring model when the last one scored lower; the report's entry."""
+        last = curve[-1] if curve else None
+        kept = "last"
+        if self.best_params is not None and last is not None and self.best_psnr > last["psnr"]:
+            trainer.load_parameters(self.best_params)
+            kept = "best"
+        if self.stopped_at is not None:
+            say(f"stopped at iteration {self.stopped_at} of {trainer.total_iters}: the test views' PSNR has not "
+                f"risen by {self.MIN_GAIN} dB since iteration {self.rise_iteration} (--stop-when-flat "
+                f"{self.patience})")
+        if kept == "best":
+            say(f"kept the model of iteration {self.best_iteration} (test PSNR {self.best_psnr:.2f} dB; iteration "
+                f"{last['iteration']}: {last['psnr']:.2f} dB)")
+        return {"patience": self.patience, "min_gain_db": self.MIN_GAIN, "stopped_at": self.stopped_at,
+                "best_iteration": self.best_iteration, "best_test_psnr": self.best_psnr, "kept": kept,
+                "chosen_on": "the test views"}
 
 
 def _write_results(trainer, out: Path, indices) -> dict:

@@ -325,6 +325,22 @@ class Reconstructor(LiveTrainer):
             self._snapshot = self._take_snapshot()  # a NaN restore must not bring the removed ones back
         self.events.emit("structure", self.step_count, {"num_gaussians": len(self.gaussians)})
 
+    def load_parameters(self, params: dict) -> None:
+        """Make copies of ``params`` (a ``Gaussians.parameters()`` dict, e.g. an earlier step's) the model; Adam's
+        moments and the density statistics start afresh. Any thread; effective from the next step."""
+        gaussians = Gaussians(**{k: v.detach().clone().to(self.device) for k, v in params.items()},
+                              sh_degree=self.gaussians.sh_degree)
+        for t in gaussians.parameters().values():
+            t.requires_grad_(True)
+        with self._model_lock:
+            self.gaussians = gaussians
+            self.optimizer = self._make_optimizer()
+            self.strategy = DensifyStrategy(self.extent, len(gaussians), self.device)
+            self._model_changed()
+            self._structure_changed()
+            self._snapshot = self._take_snapshot()
+        self.events.emit("structure", self.step_count, {"num_gaussians": len(self.gaussians)})
+
     # ----------------------------------------------------------------------------------------------- set-up
     def _make_optimizer(self) -> torch.optim.Adam:
         cfg = self.config
