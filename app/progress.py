@@ -51,7 +51,7 @@ class ProgressBar:
         if not m.get("recovered", 0.0):
             shown = {}
             for key, label in self.postfix.items():
-                if key in m:
+                if m.get(key) is not None:  # a metric a step did not measure is left out, not "None"
                     value = m[key]
                     if key == "psnr":
                         self._psnr_ema = value if self._psnr_ema is None else 0.9 * self._psnr_ema + 0.1 * value

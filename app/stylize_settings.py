@@ -14,7 +14,7 @@ def config_from_args(args: argparse.Namespace):
     config = StylizeConfig(
         loss=args.loss, tau=args.tau, k=args.k, epsilon=args.epsilon, lambda_guide=args.lambda_guide,
         sinkhorn_iters=args.sinkhorn_iters, lambda_style=args.lambda_style, lambda_content=args.lambda_content,
-        content_norm=args.content_norm, style_scale=args.style_scale, lambda_tv=args.lambda_tv,
+        content_norm=args.content_norm, content_source=args.content_source, style_scale=args.style_scale, lambda_tv=args.lambda_tv,
         lr=args.lr, lr_final=args.lr_final, iters_per_view=args.iters_per_view, min_total_iters=args.min_total_iters,
         scene_kind=args.scene_kind, view_order=args.view_order, schedule=args.schedule, seed=args.seed,
         virtual_views=args.virtual_views,

@@ -62,6 +62,10 @@ def register(sub: argparse._SubParsersAction) -> None:
                    help="the content loss's unit: relative (default): the squared feature error over the content "
                         "features' energy, the same balance at every size; mse: the mean over channels and "
                         "positions, ARF's code, where the paper's weight is 0.005")
+    p.add_argument("--content-source", choices=D.CONTENT_SOURCES, default=D.CONTENT_SOURCE,
+                   help=f"what the content term keeps each view close to: photo, the scene's photos after the "
+                        f"colour transfer (ARF's); render, the input model's render of the view after it (what the "
+                        f"model can show) (default {D.CONTENT_SOURCE})")
     p.add_argument("--style-scale", type=float, default=D.STYLE_SCALE,
                    help=f"stroke size: the painting's long side as a multiple of the render's (default "
                         f"{D.STYLE_SCALE:g}; 1 is ARF's and the paper's, where at small renders the painting's "
@@ -149,7 +153,9 @@ def run(args: argparse.Namespace) -> int:
     from training.core.run_estimate import RunEstimate, UniformSteps
 
     t0 = time.perf_counter()
+    # content/style: the norm of the content term's gradient on the render over the style term's (the balance)
     bar = ProgressBar(desc="stylizing", postfix={"loss": "loss", "style_loss": "style",
+                                                    "content_to_style": "content/style",
                                                     "trajectory_position": "view"}, disable=args.no_progress)
     # the steps cost the same throughout (fixed Gaussians and render size): timed, and timed again as the run goes
     estimate = RunEstimate(UniformSteps(), say=say_above_bars, what="stylization")

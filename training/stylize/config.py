@@ -11,7 +11,7 @@ import numpy as np
 
 from training.scene.scene import Camera
 from training.stylize import defaults as D
-from training.stylize.defaults import (CONTENT_NORMS, MAX_STYLE_SCALE, FORWARD_ITERS_PER_VIEW, FORWARD_MIN_TOTAL, LOSSES, ORBIT_ITERS_PER_VIEW,
+from training.stylize.defaults import (CONTENT_NORMS, CONTENT_SOURCES, MAX_STYLE_SCALE, FORWARD_ITERS_PER_VIEW, FORWARD_MIN_TOTAL, LOSSES, ORBIT_ITERS_PER_VIEW,
                                        ORBIT_ITERS_PER_VIEW_MANY, ORBIT_MANY_VIEWS, PAPER_MAX_SIDE, PARAMS, PRESETS,
                                        QUICK_ITER_FRACTION, QUICK_MAX_SIDE, SCENE_KINDS, SCHEDULES,
                                        STANDARD_MAX_SIDE, VIEW_ORDERS)
@@ -49,6 +49,7 @@ class StylizeConfig:
     lambda_style: float | None = None  # None: DEFAULT_LAMBDA_STYLE[loss] (30 for CCFT)
     lambda_content: float = D.LAMBDA_CONTENT
     content_norm: str = "relative"  # relative: ||X - X^||^2 / ||X^||^2 | mse: ARF's mean (objective.py)
+    content_source: str = D.CONTENT_SOURCE  # photo: the photos (ARF) | render: the input model's renders
     style_scale: float = D.STYLE_SCALE  # the painting's long side / the render's (stroke size)
     lambda_tv: float = D.LAMBDA_TV  # total variation of the render
     lr: float | None = None  # Adam learning rate of sh0 (shN: lr / 20); None: DEFAULT_LR
@@ -97,6 +98,9 @@ class StylizeConfig:
             raise ValueError(f"schedule must be one of {', '.join(SCHEDULES)}, got {self.schedule!r}")
         if self.scene_kind not in SCENE_KINDS:
             raise ValueError(f"unknown scene kind {self.scene_kind!r}; expected auto, forward or 360")
+        if self.content_source not in CONTENT_SOURCES:
+            raise ValueError(f"content_source must be one of {', '.join(CONTENT_SOURCES)}, got "
+                             f"{self.content_source!r}")
         if self.content_norm not in CONTENT_NORMS:
             raise ValueError(f"content_norm must be one of {', '.join(CONTENT_NORMS)}, got {self.content_norm!r}")
         if self.params not in PARAMS:  # worded "<field> ..." so the CLI can name the flag
