@@ -250,7 +250,8 @@ def test_the_app_checker_sees_a_circle_a_panel_import_and_a_private_name(tmp_pat
 
 
 @pytest.mark.parametrize("module", ["training.stylize.defaults", "training.raster.constants",
-                                    "training.model.sh_constants", "training.scene.camera",
+                                    "training.reconstruct.config", "training.model.sh_constants",
+                                    "training.scene.camera",
                                     "renderer_gl"])
 def test_light_modules_load_without_torch(module):
     """The CLI's help text and the renderer read these; loading them must not load torch."""

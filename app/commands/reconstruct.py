@@ -18,8 +18,7 @@ import sys
 from pathlib import Path
 
 from app.commands import add_run_flags
-
-PRESETS = ("quick", "standard", "paper")
+from training.reconstruct.config import PRESETS
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -78,7 +77,7 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 def _config(args):
     from training.core.errors import InputError
-    from training.reconstruct.trainer import ReconstructConfig
+    from training.reconstruct.config import ReconstructConfig
 
     cfg = ReconstructConfig.from_preset(args.preset)
     if args.iters is not None:
@@ -133,7 +132,8 @@ def run(args) -> int:
     from training.reconstruct.checkpoint import CHECKPOINT_NAME, load_checkpoint, save_checkpoint
     from training.core.errors import InputError
     from training.model.ply_io import write_ply
-    from training.reconstruct.trainer import ReconstructConfig, Reconstructor
+    from training.reconstruct.config import ReconstructConfig
+    from training.reconstruct.trainer import Reconstructor
     from training.reconstruct.regularizers import scale_stats
     from training.scene.loader import load_scene
     from training.core.atomic_write import atomic_open
