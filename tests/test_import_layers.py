@@ -70,6 +70,9 @@ def violations() -> list[str]:
                     out.append(f"{where}: {own} is below {parts[1]}")
                 if is_under(name, "training.raster.reference") and own != "raster":
                     out.append(f"{where}: the trainers take nothing from the test reference")
+                if len(parts) > 2 and parts[2] == "checkpoint" and parts[1] not in (own, "core"):
+                    out.append(f"{where}: a trainer's checkpoint is its own (the file format is "
+                               "training/core/checkpoint.py)")
     for path in modules("renderer_gl"):
         rel = path.relative_to(ROOT)
         for line, name in imports_of(path):
@@ -214,10 +217,13 @@ def test_the_checker_sees_a_wrong_way_import(tmp_path, monkeypatch):
         shutil.copytree(ROOT / top, tmp_path / top, ignore=shutil.ignore_patterns("__pycache__"))
     (tmp_path / "training" / "scene" / "bad.py").write_text(
         "def f():\n    from training.stylize.trainer import Stylizer\n    import moderngl\n")
+    (tmp_path / "training" / "stylize" / "sideways.py").write_text(
+        "from training.reconstruct.checkpoint import load_checkpoint\n")
     monkeypatch.setattr(sys.modules[__name__], "ROOT", tmp_path)
     found = violations()
     assert any("bad.py:2 imports training.stylize.trainer: scene is below stylize" in v for v in found), found
     assert any("bad.py:3 imports moderngl" in v for v in found), found
+    assert any("sideways.py:1 imports training.reconstruct.checkpoint: a trainer's checkpoint" in v for v in found)
 
 
 def test_the_app_has_no_circles_and_its_panels_are_leaves():
