@@ -21,8 +21,10 @@ ROOT = Path(__file__).resolve().parents[1]
 # training packages, bottom to top: a package may import its own modules and those of lower rank
 TRAINING_RANKS = {"core": 0, "scene": 1, "model": 2, "raster": 3, "reconstruct": 4, "stylize": 5, "evaluate": 6}
 GUI_MODULES = ("moderngl", "glfw", "imgui_bundle", "OpenGL", "glcontext")
-# renderer_gl may read these torch-free modules and nothing else of the engine: one source of defaults, one camera
-RENDERER_MAY_IMPORT = ("training.raster.constants", "training.model.sh_constants", "training.scene.camera")
+# renderer_gl may read these torch-free modules and nothing else of the engine: one source of defaults, one camera and
+# its pose maths
+RENDERER_MAY_IMPORT = ("training.raster.constants", "training.model.sh_constants", "training.scene.camera",
+                       "training.scene.pose")
 
 
 def modules(top: str) -> list[Path]:
@@ -204,6 +206,30 @@ def app_violations() -> list[str]:
     return out
 
 
+# the pose maths has one home, training/scene/pose.py: no other module defines these again
+POSE_FUNCTIONS = ("look_at", "orbit", "slerp", "catmull_rom", "matrix_to_quat", "quat_to_matrix", "rotation_to_quat",
+                  "quat_to_rotation", "interpolate_camera", "jacobian_limits", "splat_footprints")
+POSE_MODULE = "training/scene/pose.py"
+
+
+def pose_copies() -> list[str]:
+    out = []
+    for top in ("app", "training", "renderer_gl", "assets"):
+        for path in modules(top):
+            rel = path.relative_to(ROOT)
+            if rel.as_posix() == POSE_MODULE:
+                continue
+            for node in ast.parse(path.read_text(), filename=str(path)).body:  # functions, not a class's methods
+                if isinstance(node, ast.FunctionDef) and node.name.lstrip("_") in POSE_FUNCTIONS:
+                    out.append(f"{rel}:{node.lineno} defines {node.name}: the pose maths is {POSE_MODULE}'s")
+    return out
+
+
+def test_the_pose_maths_has_one_home():
+    found = pose_copies()
+    assert not found, "\n".join(found)
+
+
 def test_imports_run_one_way():
     found = violations()
     assert not found, "\n".join(found)
@@ -257,8 +283,7 @@ def test_the_app_checker_sees_a_circle_a_panel_import_and_a_private_name(tmp_pat
 
 @pytest.mark.parametrize("module", ["training.stylize.defaults", "training.raster.constants",
                                     "training.reconstruct.config", "training.model.sh_constants",
-                                    "training.scene.camera",
-                                    "renderer_gl"])
+                                    "training.scene.camera", "training.scene.pose", "renderer_gl"])
 def test_light_modules_load_without_torch(module):
     """The CLI's help text and the renderer read these; loading them must not load torch."""
     if not (ROOT / (module.replace(".", "/") + ".py")).exists() and not (ROOT / module).is_dir():
