@@ -1,6 +1,7 @@
 """The ``splatstyler`` console command: one parser, one module per subcommand in ``app/commands``, registered here
-and nowhere else. Nothing imports this module but ``python -m app`` (app/__main__.py) and the console script: what a
-command does is a library function (training/*/pipeline.py, app/settings, ...) the command only puts a face on.
+and nowhere else. Nothing of the product imports this module but ``python -m app`` (app/__main__.py) and the
+console script (tests/test_import_layers.py checks; tests may): what a command does is a library function
+(training/*/pipeline.py, app/settings, ...) the command only puts a face on.
 
 Each command module has ``register(subparsers)``, which adds its parser and sets ``func`` to a function taking the
 parsed arguments and returning an exit code. Modules import their heavy dependencies inside that function so that
