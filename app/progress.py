@@ -27,11 +27,11 @@ def redraw_timing(stream=None) -> dict[str, float]:
 class ProgressBar:
     """A listener (``trainer.add_listener(bar)``): "step" events advance the bar and show the metrics named in
     ``postfix`` (event metric -> label; ``psnr`` is smoothed). The bar appears with the first step, so an error
-    before training leaves no empty bar behind; its total follows the trainer's (a schedule may change live)."""
+    before training leaves no empty bar behind, counting from the step before that one's (a resumed run's bar starts
+    where it resumed); its total follows the trainer's (a schedule may change live)."""
 
-    def __init__(self, initial: int = 0, desc: str = "", postfix: dict[str, str] | None = None,
-                 disable: bool = False):
-        self.initial, self.desc, self.disable = initial, desc, disable
+    def __init__(self, desc: str = "", postfix: dict[str, str] | None = None, disable: bool = False):
+        self.desc, self.disable = desc, disable
         self.postfix = postfix or {}
         self.bar = None
         self._psnr_ema: float | None = None
@@ -44,7 +44,7 @@ class ProgressBar:
         if self.bar is None:
             from tqdm import tqdm
 
-            self.bar = tqdm(total=total, initial=self.initial, desc=self.desc, unit="it", disable=self.disable,
+            self.bar = tqdm(total=total, initial=max(0, event.step - 1), desc=self.desc, unit="it", disable=self.disable,
                             dynamic_ncols=True, **redraw_timing())
         elif total is not None and total != self.bar.total:
             self.bar.total = total

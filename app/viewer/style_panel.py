@@ -11,10 +11,10 @@ from imgui_bundle import imgui
 
 from app.viewer.runs import set_style_region, stylizing
 from app.viewer.state import REGIONS
+from app.viewer.text_colours import GREY
 from training.stylize import defaults as D
 from training.stylize.config import RANGES
 
-GREY = imgui.ImVec4(0.6, 0.6, 0.6, 1.0)
 # Settings the stylizer fixes when it starts; the panel greys them during a run and says why.
 RESTART = "fixed while a stylization runs: it shapes the run from its first step (stop and start again)"
 # The painting gives way to the settings below it (all in view without scrolling, 1920x1080 included) down to this

@@ -9,8 +9,8 @@ from imgui_bundle import imgui, implot
 from app.viewer.files import open_model
 from app.viewer.runs import start_reconstruction, start_stylization, stylize_progress
 from app.viewer.view3d import RANGES
+from app.viewer.text_colours import RED
 
-RED = imgui.ImVec4(1.0, 0.4, 0.35, 1.0)
 BALANCE_PLOT_H = 150.0
 
 

@@ -1,6 +1,6 @@
 """The evaluation entry points: ``measure_images`` (renders in, flat dict of floats out), ``measure_stylizer``
-(renders a Stylizer's current model, its original colours and its pre-colour-transfer colours, then measures) and
-``summary_line`` (one line for the CLI). The formulas are in the modules they come from and in docs/evaluation.md.
+(renders a Stylizer's current model, its original colours and its pre-colour-transfer colours, then measures),
+``Measure`` (that, as the stylize pipeline takes its report's metrics) and ``summary_line`` (one line for the CLI). The formulas are in the modules they come from and in docs/evaluation.md.
 
 Keys of the dict (None where a metric does not apply):
 
@@ -309,6 +309,19 @@ def measure_style_and_content(stylizer, taps: VGGTaps | None = None, style_views
         stylized[i] = image
     orig, pre = reference_renders(stylizer, views, cancel=cancel)
     return style_and_content(stylized, orig, pre, stylizer.style_image, taps or VGGTaps(), views, cfg.style_scale)
+
+
+class Measure:
+    """The report's metrics as ``stylize_to_folder`` takes them (``metrics=``): ``measure_stylizer`` on the finished
+    stylization against its input model, ``max_pairs`` view pairs per range; ``version`` (METRICS_VERSION) goes
+    into the report beside them."""
+
+    def __init__(self, max_pairs: int):
+        self.max_pairs = max_pairs
+        self.version = METRICS_VERSION
+
+    def __call__(self, stylizer) -> dict:
+        return measure_stylizer(stylizer, original=stylizer.input_gaussians(), max_pairs=self.max_pairs)
 
 
 def _default_lpips(lpips):
