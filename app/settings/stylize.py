@@ -66,8 +66,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     p.add_argument("--seed", type=int, default=0, help="seed of the random view order")
     p.add_argument("--virtual-views", type=int, default=0, metavar="N",
                    help="insert N interpolated cameras between consecutive views (default 0)")
-    p.add_argument("--dc-only", action="store_true",
-                   help="optimise only the DC colour; higher SH orders stay as reconstructed")
+    p.add_argument("--dc-only", action=argparse.BooleanOptionalAction, default=D.DC_ONLY,
+                   help="optimise only the DC colour, the higher SH orders staying as reconstructed: the painting "
+                        "looks the same from every direction (default; --no-dc-only optimises every band, as the "
+                        "paper does)")
     p.add_argument("--params", choices=D.PARAMS, default="colour",
                    help="colour: SH colours only, geometry unchanged (default, the paper's method); all: also "
                         "positions, scales, rotations and opacities (the paper's ablation)")

@@ -24,14 +24,15 @@ DEFAULT_LR = D.LR
 # the rule a value must meet; a value outside the span but within the rule (from the CLI) is kept, not clamped.
 RANGES: dict[str, tuple[float, float, bool]] = {
     "tau": (0.01, 10.0, True), "epsilon": (0.005, 0.5, True), "lambda_guide": (0.0, 10.0, False),
-    "lambda_content": (0.0, 10.0, False), "style_scale": (0.5, 8.0, True), "lambda_tv": (0.0, 100.0, False),
-    "lr_final": (0.01, 1.0, True), "lambda_style": (0.0, 100.0, False), "lr": (0.001, 0.1, True),
+    "lambda_content": (0.0, 50.0, False), "style_scale": (0.5, 8.0, True), "lambda_tv": (0.0, 100.0, False),
+    "lr_final": (0.01, 1.0, True), "lambda_style": (0.0, 100.0, False), "lr": (0.001, 1.0, True),
     "k": (1, 64, False), "iters_per_view": (0, 100, False), "virtual_views": (0, 4, False)}
 
 
 # the fields by kind, each checked by ``validate`` (a None in OPTIONAL means "from the preset / the paper")
 WHOLE_NUMBERS = ("k", "sinkhorn_iters", "iters_per_view", "min_total_iters", "seed", "virtual_views", "max_side")
-NUMBERS = ("tau", "epsilon", "lambda_guide", "lambda_style", "lambda_content", "lr", "style_scale", "lambda_tv", "lr_final")
+NUMBERS = ("tau", "epsilon", "lambda_guide", "lambda_style", "lambda_content", "lr", "style_scale", "lambda_tv",
+           "lr_final")
 FLAGS = ("dc_only", "color_transfer", "measure_balance")
 OPTIONAL = ("iters_per_view", "min_total_iters", "max_side", "lambda_style", "lr")
 
@@ -62,7 +63,7 @@ class StylizeConfig:
     schedule: str = "interleaved"  # interleaved: a new view every iteration (the paper) | block: iters_per_view in a row
     seed: int = 0
     virtual_views: int = 0
-    dc_only: bool = False  # keep shN at its initial values (frozen): the stylization is view-independent
+    dc_only: bool = D.DC_ONLY  # keep shN at its initial values (frozen): the stylization is view-independent
     params: str = "colour"  # colour: SH colours only (the paper) | all: geometry too (the paper's ablation)
     preset: str = "paper"  # paper | standard (the paper's iterations at 512 px) | quick
     max_side: int | None = None  # long side of the renders; None: the preset's
