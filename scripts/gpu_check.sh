@@ -373,7 +373,9 @@ styl() {  # styl RUN: reconstruct (standard, CUDA) once, then the stylization RU
   fi
   [ -f "$recon/point_cloud.ply" ] || { echo "skipped: no reconstruction"; return 0; }
   local args=(--preset "${run%_old}")
-  [ "${run%_old}" != "$run" ] && args+=(--content-norm mse --lambda-content 0.005 --style-scale 1 --lr-final 1)
+  # the settings before issue 37 (docs/stylization.md, "The content balance")
+  [ "${run%_old}" != "$run" ] && args+=(--content-norm mse --lambda-content 0.005 --content-source photo
+                                        --style-scale 1 --no-dc-only --lr 0.02 --lr-final 1 --lambda-tv 0 --k 16)
   "$PY" -m app stylize "$recon/point_cloud.ply" --data "$data/transforms.json" --style .gpu_styl/style.jpg \
     -o "$WORK/styl_$run" --backend cuda --device cuda --no-progress "${args[@]}"
   cp "$WORK/styl_$run/before_after.png" "$OUT/styl_$run.png"  # the reports come back in results.tar.gz

@@ -9,10 +9,10 @@ import math
 import numpy as np
 import pytest
 
-from app.camera_path import (CameraPath, dataset_path, keyframe_from, look_at, matrix_to_quat, orbit_path,
-                             quat_to_matrix, slerp)
+from app.camera_path import CameraPath, dataset_path, keyframe_from, orbit_path
 from training.core.errors import InputError
 from training.scene.camera import Camera
+from training.scene.pose import look_at, matrix_to_quat, quat_to_matrix, slerp
 
 
 def key(eye, target=(0, 0, 0), w=640, h=360, f=500.0) -> Camera:

@@ -194,10 +194,13 @@ def test_resume_refuses_settings_that_differ_from_the_checkpoint(demo_folder, tm
     assert "--seed" not in cap.err and "--iters" not in cap.err  # the checkpoint's own value; a longer run
     assert (out / "checkpoint.pt").read_bytes() == before
     rc, cap = _run([demo_folder, "-o", out, "--resume", "--iters", "10", "--max-gaussians", "500", "--seed", "2",
-                    "--backend", "torch"], capsys)
+                    "--backend", "torch", "--eval-every", "1"], capsys)
     assert rc == 0 and "at iteration 8" in cap.err, cap.err
-    config = json.loads((out / "report.json").read_text())["settings"]["config"]
+    report = json.loads((out / "report.json").read_text())
+    config = report["settings"]["config"]
     assert config["iterations"] == 10 and config["backend"] == "torch" and config["densify"]["max_gaussians"] == 500
+    # the scoring may change on a resume (--eval-every 1: the resumed iterations 9 and 10 scored)
+    assert config["eval_every"] == 1 and [p["iteration"] for p in report["test_curve"]][-2:] == [9, 10]
 
 
 def test_a_fresh_run_does_not_replace_an_interrupted_runs_checkpoint(demo_folder, tmp_path, capsys, monkeypatch):

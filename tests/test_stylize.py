@@ -58,8 +58,11 @@ def test_paper_schedule():
     assert paper_schedule("360", 201) == (15, 0)
     cfg = StylizeConfig()
     assert cfg.preset == "paper" and cfg.loss == "ccft"
-    assert (cfg.k, cfg.epsilon, cfg.tau, cfg.lambda_guide, cfg.style_weight, cfg.lambda_content) == (
-        16, 0.05, 0.5, 1.0, 30.0, 0.005)
+    assert (cfg.epsilon, cfg.tau, cfg.lambda_guide, cfg.style_weight) == (0.05, 0.5, 1.0, 30.0)
+    # K and the content weight depart from the paper's (issue 37: docs/stylization.md), and the paper's are taken
+    paper = StylizeConfig(k=16, content_norm="mse", lambda_content=0.005, style_scale=1.0, dc_only=False)
+    paper.validate()
+    assert (paper.k, paper.content_norm, paper.lambda_content) == (16, "mse", 0.005)
     assert schedule(cfg, "forward", 20) == (50, 2000) and schedule(cfg, "360", 201) == (15, 0)
     assert schedule(StylizeConfig(preset="quick"), "forward", 20) == (10, 400)
     assert schedule(StylizeConfig(preset="quick"), "360", 67) == (4, 0)

@@ -291,7 +291,7 @@ def test(ctx):
             if ed.selected.any():
                 ed.delete()
         elif what == "slider":
-            set_stylize(app.session, app.ui, tau=rng.uniform(0.05, 2.0), lambda_content=rng.uniform(0.0, 0.05))
+            set_stylize(app.session, app.ui, tau=rng.uniform(0.05, 2.0), lambda_content=rng.uniform(0.0, 20.0))
         elif what == "region":
             ed.select(in_sphere(ed.model.means, ed.model.means[rng.randrange(ed.count)], 1.0), "set")
             set_style_region(app.document, app.session, app.ui, rng.choice(["all", "selection", "unselected"]))

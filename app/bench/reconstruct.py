@@ -49,7 +49,8 @@ def run(args) -> list[dict]:
 
     from training.core.errors import InputError
     from training.core.run_estimate import load_average
-    from training.reconstruct.trainer import PHASES, ReconstructConfig, Reconstructor
+    from training.reconstruct.config import ReconstructConfig
+    from training.reconstruct.trainer import PHASES, Reconstructor
 
     if args.threads:
         torch.set_num_threads(args.threads)

@@ -11,8 +11,6 @@ from imgui_bundle import imgui
 from app.camera_path import CameraPath, dataset_path, keyframe_from, orbit_around
 from app.viewer.path_video import start_video
 
-GREY = imgui.ImVec4(0.6, 0.6, 0.6, 1.0)
-
 
 def path_panel(doc, session, ui) -> None:
     st, path = ui.video, doc.camera_path

@@ -18,8 +18,8 @@ from typing import Any, Callable, Literal
 
 import numpy as np
 
-EventKind = Literal["step", "structure", "view", "finished", "warning"]
-EVENT_KINDS: tuple[str, ...] = ("step", "structure", "view", "finished", "warning")
+EventKind = Literal["step", "structure", "view", "test", "finished", "warning"]
+EVENT_KINDS: tuple[str, ...] = ("step", "structure", "view", "test", "finished", "warning")
 
 
 @dataclass(frozen=True)
@@ -28,7 +28,9 @@ class TrainerEvent:
 
     kind: "step" (``metrics`` holds the step's scalar metrics), "structure" (the number or geometry of the Gaussians
     changed: densification, pruning, a NaN restore, an edit; ``metrics["num_gaussians"]``), "view" (a stylizer moved
-    to another view of its trajectory; ``metrics["trajectory_position"]``), "finished" (the schedule is done),
+    to another view of its trajectory; ``metrics["trajectory_position"]``), "test" (the held-out views were scored
+    during a run, by whoever drives it; ``metrics["test_psnr"]``, ``metrics["test_ssim"]``), "finished" (the
+    schedule is done),
     "warning" (``message`` says what, in one line). ``step`` is the trainer's step count when it happened; ``stage``
     names the trainer ("reconstruct" or "stylize")."""
 

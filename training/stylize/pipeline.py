@@ -55,7 +55,7 @@ def stylize_to_folder(model: Path, data: Path, style: Path, out: Path, config: S
     checkpoint is removed once the report is written, so one found without ``resume`` is an interrupted run's:
     InputError unless ``overwrite`` (a fresh run would replace it at its first save)."""
     from training.core.atomic_write import atomic_open, check_output_dir, make_output_dir
-    from training.scene.fingerprint import InputsChanged, check_same_inputs
+    from training.scene.fingerprint import state_to_resume
     from training.scene.image_io import write_image
     from training.model.model_io import read_model
     from training.model.ply_io import write_ply
@@ -83,16 +83,8 @@ def stylize_to_folder(model: Path, data: Path, style: Path, out: Path, config: S
     fingerprint = stylize_fingerprint(model, data, style, config, mask)
     state = None
     if resume:
-        state = load_stylize_checkpoint(ckpt_path)
-        try:
-            warning = check_same_inputs(state.get("fingerprint"), fingerprint, ckpt_path)
-        except InputsChanged as exc:
-            if not force:
-                raise
-            say(f"stylize: {ckpt_path}: made from other inputs ({exc.difference}): starting afresh (--force)")
-            state, warning = None, None
-        if warning:
-            warn(warning)
+        state = state_to_resume(load_stylize_checkpoint(ckpt_path), fingerprint, ckpt_path, force,
+                                lambda line: say(f"stylize: {line}"), warn)
     scene = load_scene(data, downscale=choose_downscale(data, config.render_max_side))
     t_loaded = time.perf_counter()
 

@@ -62,7 +62,7 @@ from training.stylize.virtual_views import ViewItem, trajectory
 # Settings that shape the run when the Stylizer is built (the cameras, the trajectory, the colour transfer, the
 # device, which parameters the optimiser holds): update_config refuses them rather than ignore them.
 FIXED_AT_START = ("view_order", "virtual_views", "preset", "device", "color_transfer", "background", "scene_kind",
-                  "max_side", "seed", "params", "schedule")
+                  "max_side", "seed", "params", "schedule", "content_source")
 GEOMETRY = ("means", "log_scales", "quats", "opacity_logits")
 # The content features of the views, kept so that a new view at every iteration costs no VGG pass of its photo:
 # about 2.4 MB a view at 256 px, 40-60 MB at 1600 px. Beyond this the least recently used view is dropped and
@@ -318,7 +318,7 @@ class Stylizer(LiveTrainer):
             return cache[self._position]
         view = self.current_view
         with torch.no_grad():
-            if view.is_virtual:
+            if view.is_virtual or self.config.content_source == "render":
                 content, _ = self.render(view.camera, sh=self._initial_sh, input_geometry=True)
                 content = content.clamp(0, 1)
             else:
