@@ -13,7 +13,8 @@ from training.core.errors import InputError
 from training.model.gaussian_init import gaussians_from_points
 from training.model.selection import box_mask
 from training.scene.scene import Scene
-from training.stylize.trainer import StylizeConfig, Stylizer, gram_distance
+from training.stylize.style_distance import gram_distance
+from training.stylize.trainer import StylizeConfig, Stylizer
 
 BACKEND = "auto"
 
@@ -105,7 +106,7 @@ def render_subset(s: Stylizer, sel: torch.Tensor, sh: torch.Tensor, cam) -> torc
     from training.raster.rasterize import rasterize
 
     g = s.gaussians
-    img, _, _ = rasterize(g.means[sel], g.quats[sel], s._scales[sel], s._opacities[sel], sh[sel],
+    img, _, _ = rasterize(g.means[sel], g.quats[sel], s.model.scales[sel], s.model.opacities[sel], sh[sel],
                           torch.as_tensor(cam.world_to_camera, dtype=torch.float32),
                           torch.as_tensor(cam.K, dtype=torch.float32), cam.width, cam.height,
                           sh_degree=g.sh_degree, background=torch.zeros(3), backend=BACKEND)
