@@ -8,7 +8,7 @@ from app.commands import add_run_flags
 
 
 def register(sub: argparse._SubParsersAction) -> None:
-    from training.scene.sfm import CAMERA_MODELS, MIN_POINTS
+    from training.scene.sfm import CAMERA_MODELS, DEFAULT_MAX_FEATURES, DEFAULT_MAX_SIZE, MIN_POINTS
 
     parser = sub.add_parser(
         "sfm", help="structure from motion: photos folder -> COLMAP scene folder (images/ + sparse/0)",
@@ -21,10 +21,11 @@ def register(sub: argparse._SubParsersAction) -> None:
     parser.add_argument("photos", metavar="PHOTOS", help="folder holding the photos (PNG, JPEG, TIFF, EXR, ...)")
     parser.add_argument("-o", "--output", metavar="DATA", required=True,
                         help="scene folder to create (must not already hold images/ or sparse/)")
-    parser.add_argument("--max-size", type=int, default=1600, metavar="PX",
-                        help="shrink photos so the long side is at most PX pixels (default 1600)")
-    parser.add_argument("--max-features", type=int, default=8192, metavar="N",
-                        help="SIFT features per photo at most (default 8192; 1024-2048 is faster on small photos)")
+    parser.add_argument("--max-size", type=int, default=DEFAULT_MAX_SIZE, metavar="PX",
+                        help=f"shrink photos so the long side is at most PX pixels (default {DEFAULT_MAX_SIZE})")
+    parser.add_argument("--max-features", type=int, default=DEFAULT_MAX_FEATURES, metavar="N",
+                        help=f"SIFT features per photo at most (default {DEFAULT_MAX_FEATURES}; 1024-2048 is faster "
+                             "on small photos)")
     parser.add_argument("--matcher", choices=("auto", "exhaustive", "sequential"), default="auto",
                         help="auto: exhaustive for up to 50 photos, sequential (name order) above")
     parser.add_argument("--camera-model", choices=CAMERA_MODELS, default="SIMPLE_RADIAL",
@@ -38,7 +39,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     parser.add_argument("--allow-partial", action="store_true",
                         help=f"keep a model that placed fewer than half the photos or has fewer than "
                              f"{MIN_POINTS} points (by default that is a failure: exit 1, nothing written)")
-    add_run_flags(parser, progress="no progress bars (staging the photos, registering them)",
+    add_run_flags(parser, progress="no progress bars (preparing the photos, features, matching, registering)",
                   no_resume="a run builds in a work folder inside DATA and starts afresh")
     parser.set_defaults(func=run)
 
@@ -46,7 +47,7 @@ def register(sub: argparse._SubParsersAction) -> None:
 def run(args: argparse.Namespace) -> int:
     import sys
 
-    from training.scene.sfm import REPORT_NAME, SfmFailed, run_sfm, summary_line
+    from training.scene.sfm import SfmFailed, result_lines, run_sfm, summary_line
 
     try:
         result = run_sfm(args.photos, args.output, max_size=args.max_size, max_features=args.max_features,
@@ -55,25 +56,13 @@ def run(args: argparse.Namespace) -> int:
                          camera_model=args.camera_model, refine_principal_point=args.refine_principal_point, allow_partial=args.allow_partial)
     except SfmFailed as exc:
         print(summary_line(exc.result.report))
-        _notes(exc.result)
+        for note in result_lines(exc.result)[1]:
+            print(f"note: {note}", file=sys.stderr)
         print(f"splatstyler: error: {exc}", file=sys.stderr)
         return 1
-    total = sum(result.seconds.values())
-    stages = ", ".join(f"{k} {v:.1f}s" for k, v in result.seconds.items())
-    print(f"{summary_line(result.report)}; {result.matcher} matching; {total:.1f} s ({stages})")
-    print(f"scene written to {result.output} (images/, sparse/0, {REPORT_NAME})")
-    _notes(result)
+    lines, notes = result_lines(result)
+    for line in lines:
+        print(line)
+    for note in notes:
+        print(f"note: {note}", file=sys.stderr)
     return 0
-
-
-def _notes(result) -> None:
-    import sys
-
-    from training.scene.sfm import name_list
-
-    if result.no_overlap:
-        print(f"note: {len(result.no_overlap)} photos overlap no other photo and are left out: "
-              f"{name_list(result.no_overlap)}", file=sys.stderr)
-    if result.unregistered:
-        print(f"note: {len(result.unregistered)} photos could not be placed and are left out: "
-              f"{name_list(result.unregistered)}", file=sys.stderr)
