@@ -1,4 +1,9 @@
-"""The stages a live session runs: reconstruction and stylization, built and saved as the CLI builds and saves them.
+"""The stages a live session runs: structure from motion, reconstruction and stylization, built and saved as the CLI
+builds and saves them.
+
+An SfM stage runs `splatstyler sfm`'s run_sfm (app/viewer/sfm_run.py) into OUT, a COLMAP folder that appears only
+whole: stopped or failed, it leaves nothing, and says so in one line (``Stage.stopped``); it hands OUT to the next
+stage, and its outputs are the lines the console prints at the end (the summary, the photos left out).
 
 A reconstruction stage writes OUT/checkpoint.pt (resumable with ``splatstyler reconstruct --resume``; kept when it
 finished, as the CLI keeps it) and OUT/point_cloud.ply, whether it finished or was stopped; a stylization stage
@@ -19,6 +24,32 @@ from pathlib import Path
 from typing import Any
 
 from app.viewer.session import Stage
+
+
+def sfm_stage(photos: str | Path, out: str | Path, settings=None) -> Stage:
+    """Structure from motion of the photos in ``photos`` into the scene folder ``out`` (``settings``: SfmSettings,
+    default `splatstyler sfm`'s)."""
+    from app.viewer.sfm_run import SfmRun, SfmSettings
+
+    out = Path(out)
+
+    def build(_previous):
+        return SfmRun(Path(photos), out, settings or SfmSettings())
+
+    def save(trainer, finished: bool, cancel) -> Path | None:
+        return out if finished else None  # run_sfm put the whole folder in place, or nothing
+
+    def outputs(trainer, saved, say) -> None:
+        from training.scene.sfm import result_lines
+
+        lines, notes = result_lines(trainer.result)
+        for line in lines + [f"note: {n}" for n in notes]:
+            say(line)
+
+    def stopped(trainer) -> str:
+        return f"structure from motion stopped: nothing written ({out} appears only once complete)"
+
+    return Stage("sfm", build, save, outputs, stopped)
 
 
 def reconstruct_stage(data: str | Path, out: str | Path, preset: str = "quick", downscale: int | None = None,
