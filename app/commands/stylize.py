@@ -23,10 +23,8 @@ from pathlib import Path
 
 from app.commands import add_run_flags
 from app.region_flags import add_region_flags, region_from_args
+from app.stage_outputs import METRIC_PAIRS, Measure
 from app.stylize_settings import config_from_args
-
-# Pairs of views per range (neighbours, 7 apart) for the consistency metric: evenly spaced along the trajectory.
-METRIC_PAIRS = 20
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -98,22 +96,6 @@ def register(sub: argparse._SubParsersAction) -> None:
                   resume="continue the interrupted stylization in OUT (OUT/stylize_checkpoint.pt); it must have been "
                          "made from these inputs and fixed settings, else exit 2")
     p.set_defaults(func=run)
-
-
-class Measure:
-    """The report's metrics (training/evaluate): consistency, style and content of the finished stylization;
-    ``version`` goes into the report beside them."""
-
-    def __init__(self, max_pairs: int = METRIC_PAIRS):
-        from training.evaluate.measure import METRICS_VERSION
-
-        self.max_pairs = max_pairs
-        self.version = METRICS_VERSION
-
-    def __call__(self, stylizer) -> dict:
-        from training.evaluate.measure import measure_stylizer
-
-        return measure_stylizer(stylizer, original=stylizer.input_gaussians(), max_pairs=self.max_pairs)
 
 
 def run(args: argparse.Namespace) -> int:
