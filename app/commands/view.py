@@ -43,7 +43,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--run", choices=("reconstruct", "stylize", "all"), default=None,
                    help="start at once: reconstruct DATA, stylize MODEL, or both in turn")
     p.add_argument("--preset", choices=("quick", "standard", "paper"), default="quick",
-                   help="reconstruction preset (default: quick)")
+                   help="reconstruction preset, and with PHOTOS the stylization's too (default: quick)")
     p.add_argument("--iters", type=int, default=None, help="reconstruction iterations (default: the preset's)")
     p.add_argument("--downscale", type=int, default=None, help="reconstruction image downscale "
                                                                "(default: the preset's)")

@@ -277,8 +277,7 @@ class ViewerApp:
                     self._last_snapshot_at = 0.0  # a pause or the end: show the model as it is now
                     if item.stage == "stylize" and item.text in ("finished", "stopped", "error"):
                         style_back(ui)
-                    if item.text in ("finished", "stopped", "error") and not ui.photos.ended:
-                        ui.messages.guarded("photos", photos.photos_run_ended, doc, session, ui, item.text)
+                    photos.note_state(ui, item.text)
             elif isinstance(item, TrainerEvent):
                 if item.kind == "view":
                     self._overlays_stale = True
@@ -287,6 +286,7 @@ class ViewerApp:
                 elif item.kind == "info":
                     ui.messages.say(item.message)
         runs.finish_pending(ui)
+        ui.messages.guarded("photos", photos.end_when_done, doc, session, ui)
         watch_style_tab(ui)
         if doc.cameras and view.settings.show_frustums and self._cameras_at_view() != self._frustums_hidden:
             self.update_overlays()  # the view came near cameras, or left them

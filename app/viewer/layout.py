@@ -100,7 +100,7 @@ def status_text(session, ui) -> str:
     view's frames per second, and how far the view is behind the trainer."""
     status = session.status()
     bits = []
-    if status.detail and session.running:  # a stage whose steps are no iterations (SfM): its phase, in words
+    if status.detail:  # a stage whose steps are no iterations (SfM): its phase, in words
         bits += [f"{status.stage}: {status.state}", status.detail]
         if status.seconds_left is not None and status.state == "running":
             bits.append(phase_time_left(status.seconds_left))  # the phase's: SfM's phases differ in kind

@@ -132,12 +132,26 @@ def start_photos(doc, session, ui) -> None:
         view.clear(1)
         view.overlays = None
         view.camera = None  # placed on the first registered cameras
-    p.out, p.folders, p.ended, p.dialog = str(out), {k: str(v) for k, v in folders.items()}, False, False
+    p.out, p.folders, p.ended, p.ending, p.dialog = str(out), {k: str(v) for k, v in folders.items()}, False, "", False
     ui.messages.error = ""
     ui.messages.say(f"from {count} photos in {folder}: structure from motion into "
                     f"{folders['scene']}, then " + ("reconstruction and stylization" if painting else
                                                      "reconstruction") + f", into {out}")
     session.start(stages)
+
+
+def note_state(ui, state: str) -> None:
+    """The session's run reached ``state``: the pipeline's end is taken care of once its thread is gone."""
+    if state in ("finished", "stopped", "error") and not ui.photos.ended:
+        ui.photos.ending = state
+
+
+def end_when_done(doc, session, ui) -> None:
+    """Each frame: the pipeline's end (``photos_run_ended``) once the run's thread has ended (the session's last
+    state comes a moment before, and a model cannot open while a run goes)."""
+    if ui.photos.ending and not session.running:
+        state, ui.photos.ending = ui.photos.ending, ""
+        photos_run_ended(doc, session, ui, state)
 
 
 def photos_run_ended(doc, session, ui, state: str) -> None:

@@ -5,14 +5,15 @@ and reads, without ever blocking on a step: the events the trainer emits and the
 (``poll()``), the latest model (``snapshot()``, the trainer's consistent copy), and a status line's figures
 (``status()``). The trainer never waits on a frame: commands are read between steps.
 
-A run is a list of stages (``Stage``): reconstruct, then stylize, or either alone; from photos, structure from motion
-first (its "trainer" runs the whole SfM in one step, and Stop reaches it inside that step: ``interrupt``). Each stage builds its trainer
-inside the thread (loading a scene or VGG takes seconds, and the window must stay live meanwhile), steps it to the
-end, and saves its outputs. Stop, window close and Ctrl-C save too: a reconstruction writes its checkpoint and PLY,
-a stylization its current model (also when the stop comes during its final colour transfer: a save cancelled part
-way saves again, quickly, what there is, and the stage's further outputs and the next stage are skipped); an
-exception in the trainer becomes one line in the UI and the session goes on. Settings given while a stage's
-trainer is being built are kept for that trainer (``update_config``), never handed to the last stage's.
+A run is a list of stages (``Stage``): reconstruct, then stylize, or either alone; from photos, structure from
+motion first (its "trainer" runs the whole SfM in one step, and Stop reaches it inside that step: ``interrupt``).
+Each stage builds its trainer inside the thread (loading a scene or VGG takes seconds, and the window must stay live
+meanwhile), steps it to the end, and saves its outputs. Stop, window close and Ctrl-C save too: a reconstruction
+writes its checkpoint and PLY, a stylization its current model (also when the stop comes during its final colour
+transfer: a save cancelled part way saves again, quickly, what there is, and the stage's further outputs and the
+next stage are skipped); an exception in the trainer becomes one line in the UI and the session goes on. Settings
+given while a stage's trainer is being built are kept for that trainer (``update_config``), never handed to the last
+stage's.
 
 The session never sleeps the trainer: sharing the CPU with the view is the view's business (it limits how much of
 the time it spends drawing while a trainer runs; see view3d.py).

@@ -1,8 +1,9 @@
 """The viewer's UI state by role, each a typed object the panels read and write: the paths typed in the Scene panel,
 the one-line messages, what the edit tools, the gizmo, the Colour panel's controls, the extra selections and the
 measure tools hold, the export dialog's settings, the video of the camera path, the training runs' settings and
-outputs, the New from photos dialog and the photos pipeline it starts, the project file, and the window's own (where the 3D view is, frame timing, what is shown). ``Ui`` holds
-one of each; panels get it with the document and the session, and nothing adds attributes to it.
+outputs, the New from photos dialog and the photos pipeline it starts, the project file, and the window's own (where
+the 3D view is, frame timing, what is shown). ``Ui`` holds one of each; panels get it with the document and the
+session, and nothing adds attributes to it.
 
 What is edited (the models, their edits, the dataset, the painting, the camera path) is the document's
 (document.py), not here.
@@ -196,6 +197,7 @@ class PhotosState:
     out: str = ""
     folders: dict = field(default_factory=dict)
     ended: bool = True
+    ending: str = ""  # the state the run ended in (finished, stopped, error), until its thread is gone
 
 
 @dataclass

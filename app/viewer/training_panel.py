@@ -140,7 +140,7 @@ def loss_curves(session, ui) -> None:
     # the plot takes the panel's height left below it (the list of runs keeps its lines), never less than 170 px
     reserve = (len(ui.training.runs) + 2) * imgui.get_text_line_height_with_spacing() if ui.training.runs else 0.0
     height = max(170.0, imgui.get_content_region_avail().y - reserve)
-    if implot.begin_plot("losses", imgui.ImVec2(-1, height)):
+    if implot.begin_plot("sparse points###losses" if sfm else "losses", imgui.ImVec2(-1, height)):
         fit = implot.AxisFlags_.auto_fit.value  # the curves grow every step: keep them all in view
         implot.setup_axes(*(("photos registered", "points") if sfm else ("step", "loss")), fit, fit)
         # above the plot, in one row: inside it, the legend covered the curves of a 170 px plot

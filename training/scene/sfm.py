@@ -71,8 +71,8 @@ MIN_PAIR_INLIERS = 15
 PHASES = {"photos": ("preparing photos", "photos"), "features": ("extracting features", "photos"),
           "matching": ("matching", "pairs"), "mapping": ("registering", "photos registered"),
           "undistort": ("undistorting", "photos")}
-# While watched, feature extraction runs in chunks of this many photos per core (one photo per core at a time in COLMAP; measured
-# on the fern's 20 photos: 10 chunks cost no more than one call within the noise of a shared machine).
+# While watched, feature extraction runs in chunks of this many photos per core (COLMAP takes one photo per core at a
+# time; measured on the fern's 20 photos: 10 chunks cost no more than one call, within a shared machine's noise).
 EXTRACT_PER_CORE = 2
 # While watched, matching runs in at most this many chunks of at least MATCH_CHUNK_MIN pairs: each chunk costs 0.4 to
 # 0.6 s of set-up (measured on the fern's 190 pairs, 2 shared cores: 5.0 s in one call, 7.4 s in 4 chunks, 9.1 s
