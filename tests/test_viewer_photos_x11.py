@@ -155,7 +155,9 @@ Path(os.environ["RESULT"]).write_text(json.dumps(found))
     assert np.mean(lit) > 0.8, f"only {np.mean(lit):.0%} of the points in view are drawn on the X screen"
     assert (bright > 40).mean() < 0.5, "the view is lit everywhere, not at the points"
     # the cameras came one registration at a time, and the reconstruction started from the scene made
-    assert found["registrations"][:3] == [0, 2, 3] and 3 <= len(centres) <= found["registrations"][-1] < 10
+    # (the session's history runs ahead of the preview on screen, which the view takes at its refresh)
+    assert found["registrations"][:3] == [0, 2, 3] and 3 <= len(centres) <= found["registrations"][-1]
+    assert len(centres) < 10, "the capture came after the last registration"
     assert Path(found["scene"]) == tmp_path / "out" / "scene" and found["cameras"] == 10
     assert (tmp_path / "out" / "scene" / "sfm_report.json").is_file()
     assert any(line.startswith("registered 10/10 photos") for line in found["messages"])
