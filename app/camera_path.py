@@ -1,6 +1,6 @@
 """Camera paths for videos: keyframes (pinhole cameras, training/scene/camera.py), a smooth path through them,
 ready-made paths (an orbit, the dataset's trajectory), and JSON files; the viewer's Camera path panel, a project and
-``splatstyler video`` share it. The look-at and orbit maths are renderer_gl.camera's.
+``splatstyler video`` share it. The maths (orbit, spline, slerp) is training/scene/pose.py's.
 
 Conventions: a keyframe's ``world_to_camera`` is a 4x4 in OpenCV axes (x right, y down, z forward), as everywhere in
 this project; intrinsics are pixels for the keyframe's own ``width`` x ``height`` and are rescaled when frames are
@@ -22,14 +22,14 @@ import json
 import math
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import Iterator
 
 import numpy as np
 
-from renderer_gl.camera import look_at, orbit  # noqa: F401  (look_at is part of this module's interface)
 from training.core.atomic_write import atomic_open
 from training.core.errors import InputError
-from training.model.transform import matrix_to_quat  # one Shepperd conversion for paths and model transforms
 from training.scene.camera import Camera, camera_of
+from training.scene.pose import orbit, path_camera
 
 FORMAT_VERSION = 1
 MAX_FPS = 240.0
@@ -41,58 +41,7 @@ def keyframe_from(camera) -> Camera:
     return camera_of(camera, "keyframe")
 
 
-def pose(center, rotation_c2w) -> np.ndarray:
-    """(4, 4) world-to-camera from a camera centre and a camera-to-world rotation."""
-    m = np.eye(4)
-    r = np.asarray(rotation_c2w, dtype=np.float64)
-    m[:3, :3] = r.T
-    m[:3, 3] = -r.T @ np.asarray(center, dtype=np.float64)
-    return m
-
-
-# ------------------------------------------------------------------------------------------- quaternions
-def quat_to_matrix(q: np.ndarray) -> np.ndarray:
-    w, x, y, z = np.asarray(q, dtype=np.float64) / np.linalg.norm(q)
-    return np.array([[1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)],
-                     [2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)],
-                     [2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)]])
-
-
-def slerp(q0: np.ndarray, q1: np.ndarray, t: float) -> np.ndarray:
-    """Constant-speed rotation from q0 to q1 along the shorter arc."""
-    d = float(q0 @ q1)
-    if d < 0:
-        q1, d = -q1, -d
-    if d > 0.9995:  # nearly equal: the formula divides by sin of a tiny angle; a normalised lerp is exact enough
-        q = q0 + t * (q1 - q0)
-        return q / np.linalg.norm(q)
-    theta = math.acos(min(1.0, d))
-    return (math.sin((1 - t) * theta) * q0 + math.sin(t * theta) * q1) / math.sin(theta)
-
-
-def catmull_rom(p0, p1, p2, p3, t: float, alpha: float = 0.5) -> np.ndarray:
-    """The point at ``t`` in [0, 1] between p1 and p2 of a Catmull-Rom spline (alpha 0.5: centripetal)."""
-    pts = [np.asarray(p, dtype=np.float64) for p in (p0, p1, p2, p3)]
-    knots = [0.0]
-    for a, b in zip(pts, pts[1:]):
-        knots.append(knots[-1] + max(float(np.linalg.norm(b - a)) ** alpha, 1e-9))
-    t0, t1, t2, t3 = knots
-    u = t1 + t * (t2 - t1)
-
-    def mix(a, b, ta, tb):
-        return (tb - u) / (tb - ta) * a + (u - ta) / (tb - ta) * b
-
-    a1, a2, a3 = mix(pts[0], pts[1], t0, t1), mix(pts[1], pts[2], t1, t2), mix(pts[2], pts[3], t2, t3)
-    b1, b2 = mix(a1, a2, t0, t2), mix(a2, a3, t1, t3)
-    return mix(b1, b2, t1, t2)
-
-
 # ------------------------------------------------------------------------------------------- the path
-def _relative_intrinsics(k: Camera) -> np.ndarray:
-    """fx, fy, cx, cy over the image size: what stays the same when a view is rendered at another size."""
-    return np.array([k.fx / k.width, k.fy / k.height, k.cx / k.width, k.cy / k.height])
-
-
 @dataclass
 class CameraPath:
     keyframes: list[Camera] = field(default_factory=list)
@@ -101,8 +50,14 @@ class CameraPath:
     loop: bool = False
 
     def validate(self, name=None) -> None:
+        """A path a video can be made of: keyframes, and ``validate_timing``'s limits."""
         if not self.keyframes:
             raise InputError(name, "a camera path needs at least one keyframe")
+        self.validate_timing(name)
+
+    def validate_timing(self, name=None) -> None:
+        """Duration and fps within the limits, checked whether or not there are keyframes yet (a project's empty
+        path gets keyframes in the viewer and is rendered with the timing it came with)."""
         if not (math.isfinite(self.duration) and self.duration > 0):
             raise InputError(name, f"duration must be a positive number of seconds, got {self.duration}")
         if not (math.isfinite(self.fps) and 0 < self.fps <= MAX_FPS):
@@ -126,30 +81,10 @@ class CameraPath:
         """The camera at ``t`` seconds (clamped to the path), at ``width`` x ``height`` (default: the first
         keyframe's size)."""
         keys = self.keyframes
-        n = len(keys)
         w = int(width or keys[0].width)
         h = int(height or keys[0].height)
-        segments = self._segments()
-        if segments == 0:
-            return keys[0].resized(w, h)
-        s = min(max(t / self.duration, 0.0), 1.0) * segments
-        i = min(int(s), segments - 1)
-        u = s - i
-
-        def key(j):
-            return keys[j % n] if self.loop else keys[min(max(j, 0), n - 1)]
-
-        c = [key(j).center for j in (i - 1, i, i + 1, i + 2)]
-        if not self.loop:  # mirror the ends so the first and last segments have a neighbour to bend toward
-            if i == 0:
-                c[0] = 2 * c[1] - c[2]
-            if i + 2 > n - 1:
-                c[3] = 2 * c[2] - c[1]
-        centre = catmull_rom(*c, u)
-        a, b = key(i), key(i + 1)
-        rot = quat_to_matrix(slerp(matrix_to_quat(a.rotation), matrix_to_quat(b.rotation), u))
-        rel = (1 - u) * _relative_intrinsics(a) + u * _relative_intrinsics(b)
-        return Camera("path", w, h, rel[0] * w, rel[1] * h, rel[2] * w, rel[3] * h, pose(centre, rot))
+        s = min(max(t / self.duration, 0.0), 1.0) * self._segments()
+        return path_camera(keys, s, "path", self.loop, size=(w, h))
 
     def frame_times(self) -> np.ndarray:
         """Seconds of each frame: the path's start to its end, or, for a loop, up to one step before the start."""
@@ -160,7 +95,12 @@ class CameraPath:
 
     def cameras(self, width: int | None = None, height: int | None = None) -> list[Camera]:
         """Every frame's camera."""
-        return [self.camera_at(float(t), width, height) for t in self.frame_times()]
+        return list(self.iter_cameras(width, height))
+
+    def iter_cameras(self, width: int | None = None, height: int | None = None) -> Iterator[Camera]:
+        """Every frame's camera, one at a time (the viewer's video makes each as its frame is rendered)."""
+        for t in self.frame_times():
+            yield self.camera_at(float(t), width, height)
 
     # ------------------------------------------------------------------ files
     def to_dict(self) -> dict:
@@ -197,6 +137,10 @@ class CameraPath:
             data = json.loads(path.read_text())
         except (ValueError, UnicodeDecodeError) as exc:
             raise InputError(path, f"not valid JSON ({str(exc).splitlines()[0]})") from None
+        except RecursionError:
+            raise InputError(path, "nests its JSON too deeply to be a camera path") from None
+        except OSError as exc:
+            raise InputError(path, f"cannot read: {exc.strerror or exc}") from None
         return cls.from_dict(data, path)
 
 

@@ -1,4 +1,7 @@
-"""The ``splatstyler`` console command: one parser, one module per subcommand in ``app/commands``.
+"""The ``splatstyler`` console command: one parser, one module per subcommand in ``app/commands``, registered here
+and nowhere else. Nothing of the product imports this module but ``python -m app`` (app/__main__.py) and the
+console script (tests/test_import_layers.py checks; tests may): what a command does is a library function
+(training/*/pipeline.py, app/settings, ...) the command only puts a face on.
 
 Each command module has ``register(subparsers)``, which adds its parser and sets ``func`` to a function taking the
 parsed arguments and returning an exit code. Modules import their heavy dependencies inside that function so that
@@ -8,25 +11,14 @@ parsed arguments and returning an exit code. Modules import their heavy dependen
 from __future__ import annotations
 
 import argparse
-import importlib
 import re
 import sys
 
+from app.commands import bench, crop, demo, export, info, reconstruct, render, sfm, stylize, video, view
+from app.commands import eval as evaluate
+
 # Order here is the order in `splatstyler --help`.
-COMMANDS = [
-    "demo",
-    "view",
-    "sfm",
-    "info",
-    "reconstruct",
-    "stylize",
-    "eval",
-    "export",
-    "crop",
-    "render",
-    "video",
-    "bench",
-]
+COMMANDS = (demo, view, sfm, info, reconstruct, stylize, evaluate, export, crop, render, video, bench)
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -39,14 +31,8 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("--version", action="version", version=f"splatstyler {version()}")
     parser.add_argument("--debug", action="store_true", help="show full tracebacks on errors")
     sub = parser.add_subparsers(dest="command", metavar="COMMAND")
-    for name in COMMANDS:
-        try:
-            module = importlib.import_module(f"app.commands.{name}")
-        except ModuleNotFoundError as exc:
-            if exc.name == f"app.commands.{name}":
-                continue  # a command not built yet is simply absent from the menu
-            raise
-        module.register(sub)
+    for command in COMMANDS:
+        command.register(sub)
     return parser
 
 
@@ -81,8 +67,8 @@ def main(argv: list[str] | None = None) -> int:
     restore_signals = stop_signals.install()
     try:
         return int(args.func(args) or 0)
-    except KeyboardInterrupt:
-        print(f"splatstyler: stopped by {stop_signals.signal_name()}", file=sys.stderr)
+    except KeyboardInterrupt as stop:  # its text, if any, says where the run stopped and what was kept
+        print(f"splatstyler: stopped by {stop_signals.signal_name()} {stop}".rstrip(), file=sys.stderr)
         return stop_signals.exit_code()
     except InputError as exc:
         if args.debug:

@@ -27,11 +27,11 @@ def redraw_timing(stream=None) -> dict[str, float]:
 class ProgressBar:
     """A listener (``trainer.add_listener(bar)``): "step" events advance the bar and show the metrics named in
     ``postfix`` (event metric -> label; ``psnr`` is smoothed). The bar appears with the first step, so an error
-    before training leaves no empty bar behind; its total follows the trainer's (a schedule may change live)."""
+    before training leaves no empty bar behind, counting from the step before that one's (a resumed run's bar starts
+    where it resumed); its total follows the trainer's (a schedule may change live)."""
 
-    def __init__(self, initial: int = 0, desc: str = "", postfix: dict[str, str] | None = None,
-                 disable: bool = False):
-        self.initial, self.desc, self.disable = initial, desc, disable
+    def __init__(self, desc: str = "", postfix: dict[str, str] | None = None, disable: bool = False):
+        self.desc, self.disable = desc, disable
         self.postfix = postfix or {}
         self.bar = None
         self._psnr_ema: float | None = None
@@ -44,14 +44,14 @@ class ProgressBar:
         if self.bar is None:
             from tqdm import tqdm
 
-            self.bar = tqdm(total=total, initial=self.initial, desc=self.desc, unit="it", disable=self.disable,
+            self.bar = tqdm(total=total, initial=max(0, event.step - 1), desc=self.desc, unit="it", disable=self.disable,
                             dynamic_ncols=True, **redraw_timing())
         elif total is not None and total != self.bar.total:
             self.bar.total = total
         if not m.get("recovered", 0.0):
             shown = {}
             for key, label in self.postfix.items():
-                if key in m:
+                if m.get(key) is not None:  # a metric a step did not measure is left out, not "None"
                     value = m[key]
                     if key == "psnr":
                         self._psnr_ema = value if self._psnr_ema is None else 0.9 * self._psnr_ema + 0.1 * value

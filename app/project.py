@@ -62,6 +62,7 @@ import numpy as np
 from app.camera_path import CameraPath
 from training.core.atomic_write import atomic_path
 from training.core.errors import InputError
+from training.core.npy_io import read_npy
 from training.model.colour_edit import ColourAdjustment, ColourEdits
 from training.scene.camera import Camera
 
@@ -77,6 +78,14 @@ _HASH_CHUNK = 1 << 20
 # itself stops a member at the size its header declares.
 MAX_MANIFEST_BYTES = 64 << 20
 MAX_ARRAY_ROWS = 100_000_000
+# what the arrays of one project inflate to together, each member once however often the manifest names it: a
+# 10-million-Gaussian model's row list (80 MB), selection and hidden flags and 40 colour regions fit; a few kB of
+# deflated zeros naming hundreds of distinct 10-million-row members do not
+MAX_ARRAY_BYTES = 512 << 20
+# an embedded model inflates to at most this many times the bytes it takes in the project (ours are stored, 1:1;
+# a deflated PLY, its zero SH padding included, stays under 5:1), or to EMBED_FREE_BYTES whatever its ratio
+MAX_EMBED_RATIO = 20
+EMBED_FREE_BYTES = 1 << 20
 # what reading a damaged member raises: a checksum or deflate error, a member cut short
 _ZIP_ERRORS = (zipfile.BadZipFile, zlib.error, EOFError, OSError, ValueError)
 
@@ -143,7 +152,10 @@ class Project:
             with tempfile.TemporaryDirectory() as tmp:
                 target = Path(tmp) / Path(ref.embedded).name
                 extract_member(self.source, ref.embedded, target)
-                return read_model(target)
+                try:
+                    return read_model(target)
+                except InputError as exc:  # the temporary copy is gone: the project and its member are the names
+                    raise InputError(self.source, f"embedded model {ref.embedded}: {exc.problem}") from None
         if ref.missing:
             raise InputError(ref.path, "model file not found")
         return read_model(ref.path)
@@ -156,13 +168,28 @@ def extract_member(source: Path, member: str, target: Path) -> Path:
     from training.core.atomic_write import atomic_open
 
     try:
-        with zipfile.ZipFile(source) as z, z.open(member) as src, atomic_open(target, "wb") as dst:
-            shutil.copyfileobj(src, dst, _HASH_CHUNK)
-    except KeyError:
-        raise InputError(source, f"embedded model {member} is not in the project") from None
+        with zipfile.ZipFile(source) as z:
+            info = embedded_member(z, source, member)
+            with z.open(info) as src, atomic_open(target, "wb") as dst:
+                shutil.copyfileobj(src, dst, _HASH_CHUNK)
     except _ZIP_ERRORS as exc:
         raise InputError(source, f"embedded model {member} cannot be read ({_first_line(exc)})") from None
     return target
+
+
+def embedded_member(z: zipfile.ZipFile, source: Path, member: str) -> zipfile.ZipInfo:
+    """The zip entry of an embedded model, checked before it is inflated: a member that would inflate far beyond
+    the bytes it takes (``MAX_EMBED_RATIO``) is refused, so a small project cannot fill the disk it is copied to."""
+    try:
+        info = z.getinfo(member)
+    except KeyError:
+        raise InputError(source, f"embedded model {member} is not in the project") from None
+    # the bytes the member really has: a header may claim more than the project file holds
+    packed = min(info.compress_size, Path(source).stat().st_size)
+    if info.file_size > max(EMBED_FREE_BYTES, MAX_EMBED_RATIO * packed):
+        raise InputError(source, f"embedded model {member} would inflate to {info.file_size:,} bytes from "
+                                 f"{packed:,} (more than {MAX_EMBED_RATIO} times): a damaged or crafted project")
+    return info
 
 
 def _first_line(exc: BaseException) -> str:
@@ -264,7 +291,8 @@ def save_project(path: str | Path, project: Project, embed: bool = False) -> Pat
                     info = zipfile.ZipInfo(member)
                     info.compress_type = zipfile.ZIP_STORED
                     try:
-                        with zipfile.ZipFile(project.source) as old, old.open(src) as fin, \
+                        with zipfile.ZipFile(project.source) as old, \
+                                old.open(embedded_member(old, project.source, src)) as fin, \
                                 z.open(info, "w", force_zip64=True) as fout:
                             shutil.copyfileobj(fin, fout, _HASH_CHUNK)
                     except _ZIP_ERRORS as exc:
@@ -315,6 +343,8 @@ def open_project(path: str | Path, check_hashes: bool = True) -> tuple[Project, 
             data = json.loads(raw)
         except (ValueError, UnicodeDecodeError) as exc:
             raise InputError(path, f"{MANIFEST} is not valid JSON ({str(exc).splitlines()[0]})") from None
+        except RecursionError:
+            raise InputError(path, f"{MANIFEST} nests its JSON too deeply to be a project's") from None
         reader = _Reader(path, z, check_hashes)
         project = reader.project(upgrade(data, path))
     project.source = path
@@ -347,6 +377,8 @@ class _Reader:
         self.path, self.z, self.check_hashes = path, z, check_hashes
         self.folder = path.absolute().parent
         self.problems: list[str] = []
+        self.arrays: dict[str, np.ndarray] = {}  # member -> its array, as read
+        self.array_bytes = 0
 
     def fail(self, problem: str):
         raise InputError(self.path, problem)
@@ -372,7 +404,9 @@ class _Reader:
                                    self.number(path, "duration", 8.0, "camera_path.", positive=True),
                                    self.number(path, "fps", 30.0, "camera_path.", positive=True),
                                    bool(path.get("loop", False)))
-        if p.camera_path.keyframes:  # a path file's limits: the viewer draws the path and renders it to a video
+        # a path file's limits, keyframes or not: the viewer draws the path and renders it to a video
+        p.camera_path.validate_timing(self.path)
+        if p.camera_path.keyframes:
             p.camera_path.validate(self.path)
         p.layout = data.get("layout", "")
         if not isinstance(p.layout, str):
@@ -397,9 +431,15 @@ class _Reader:
             a = np.array(v, dtype=np.float64)
         except (TypeError, ValueError):
             self.fail(f"'{where}' must be 3 numbers")
-        if a.shape != (3,) or not np.isfinite(a).all() or not np.linalg.norm(a) > 0:
+        if a.shape != (3,) or not np.isfinite(a).all():
             self.fail(f"'{where}' must be 3 finite numbers, not all 0")
-        return a / np.linalg.norm(a)
+        with np.errstate(all="ignore"):
+            unit = a / np.linalg.norm(a)
+        # a length that overflows (1e308) or underflows (5e-324) gives no direction, not a zero or a wrong one
+        if not np.isfinite(unit).all() or abs(np.linalg.norm(unit) - 1.0) > 1e-9:
+            self.fail(f"'{where}' must be a direction: 3 numbers, not all 0, whose length is a finite number "
+                      f"(got {a.tolist()})")
+        return unit
 
     def similarity(self, v, where: str) -> np.ndarray:
         from training.model.transform import split_similarity
@@ -420,27 +460,37 @@ class _Reader:
             info = self.z.getinfo(member)
         except KeyError:
             self.fail(f"'{where}' names {member}, which is not in the project")
-        fmt = np.lib.format
-        try:
-            with self.z.open(info) as f:
-                # the header first: the array's type and length are checked before anything is inflated
-                version = fmt.read_magic(f)
-                read_header = fmt.read_array_header_1_0 if version == (1, 0) else fmt.read_array_header_2_0
-                shape, fortran, kind = read_header(f)
-                ok = kind == np.dtype(bool) if dtype == "bool" else kind.kind in "iu"
-                if len(shape) != 1 or not ok or kind.hasobject:
-                    self.fail(f"{member} must be a 1-D {dtype} array, got {kind} {shape}")
-                rows = shape[0]
-                if rows > MAX_ARRAY_ROWS:
-                    self.fail(f"{member} holds {rows:,} rows; a project array holds at most {MAX_ARRAY_ROWS:,}")
-                if length is not None and rows != length:
-                    self.fail(f"{member} has {rows} rows, expected {length}")
-                if info.file_size != f.tell() + rows * kind.itemsize:
-                    self.fail(f"{member} is {info.file_size:,} bytes, not the {rows:,} rows its header declares")
-                a = np.frombuffer(f.read(rows * kind.itemsize), dtype=kind).copy()
-                f.read()  # to the end: zipfile checks the member's CRC there
-        except _ZIP_ERRORS as exc:
-            self.fail(f"{member} is not a readable .npy array ({_first_line(exc)})")
+
+        def check(shape: tuple[int, ...], kind: np.dtype) -> None:
+            ok = kind == np.dtype(bool) if dtype == "bool" else kind.kind in "iu"
+            if len(shape) != 1 or not ok:
+                self.fail(f"{member} must be a 1-D {dtype} array, got {kind} {shape}")
+            rows = shape[0]
+            if rows > MAX_ARRAY_ROWS:
+                self.fail(f"{member} holds {rows:,} rows; a project array holds at most {MAX_ARRAY_ROWS:,}")
+            if length is not None and rows != length:
+                self.fail(f"{member} has {rows} rows, expected {length}")
+
+        if member in self.arrays:  # a member several entries name (one region, many adjustments) is read once
+            a = self.arrays[member]
+            check(a.shape, a.dtype)
+        else:
+            def within_budget(shape: tuple[int, ...], kind: np.dtype) -> None:
+                check(shape, kind)
+                total = self.array_bytes + math.prod(shape) * kind.itemsize
+                if total > MAX_ARRAY_BYTES:
+                    self.fail(f"its arrays inflate to more than {MAX_ARRAY_BYTES:,} bytes ({member} brings them to "
+                              f"{total:,}); a damaged or crafted project")
+
+            try:
+                # the header first, bounded by the member's size: its type and length are checked before anything
+                # else is inflated
+                with self.z.open(info) as f:
+                    a = read_npy(f, info.file_size, within_budget)
+            except _ZIP_ERRORS as exc:
+                self.fail(f"{member} is not a readable .npy array ({_first_line(exc)})")
+            self.arrays[member] = a
+            self.array_bytes += a.nbytes
         return a.astype(np.int64) if dtype == "int" else a
 
     def ref(self, d, what: str, recorded_hash: bool = False) -> FileRef | None:

@@ -16,7 +16,8 @@ from dataclasses import replace
 
 import numpy as np
 
-from training.model.transform import matrix_to_quat, quat_multiply, sh_rotation, split_similarity
+from training.model.transform import quat_multiply, sh_rotation, split_similarity
+from training.scene.pose import matrix_to_quat
 
 VIEWER_UP = np.array([0.0, -1.0, 0.0])  # the viewer's up: a photo's -y axis, in the frames our files use
 

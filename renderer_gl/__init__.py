@@ -8,8 +8,9 @@ same picture. It imports no torch and no window code (glfw, imgui), so a viewer,
 it anywhere. API and conventions: docs/renderer.md.
 """
 
-from renderer_gl.camera import look_at, orbit, view
+from renderer_gl.camera import view
 from training.scene.camera import Camera
+from training.scene.pose import look_at, orbit
 from renderer_gl.context import Offscreen, create_context
 from renderer_gl.overlays import Lines, frustum, frustums, polyline
 from renderer_gl.renderer import MODES, FrameInfo, SplatRenderer

@@ -48,13 +48,9 @@ def frustum(camera, size: float, color=(1.0, 0.8, 0.1, 1.0)) -> Lines:
     from renderer_gl.camera import view
 
     v = view(camera)
-    c2w = np.linalg.inv(v.world_to_camera)
-    corners_px = np.array([[0, 0], [v.width, 0], [v.width, v.height], [0, v.height]], dtype=np.float64)
-    cam = np.stack([(corners_px[:, 0] - v.cx) / v.fx, (corners_px[:, 1] - v.cy) / v.fy, np.ones(4)], 1) * size
-    top_mid = np.array([(v.width / 2 - v.cx) / v.fx, (-0.15 * v.height - v.cy) / v.fy, 1.0]) * size
-    pts = np.concatenate([cam, top_mid[None], np.zeros((1, 3))])
-    world = pts @ c2w[:3, :3].T + c2w[:3, 3]
-    c, k, tip = world[5], world[:4], world[4]
+    # the image's corners and the tick's tip (above the top edge's middle) at depth size
+    k = v.unproject([0, v.width, v.width, 0], [0, 0, v.height, v.height], size)
+    tip, c = v.unproject(v.width / 2, -0.15 * v.height, size), v.center
     segs = [(c, k[i]) for i in range(4)] + [(k[i], k[(i + 1) % 4]) for i in range(4)] + [(k[0], tip), (tip, k[1])]
     return Lines(np.array(segs), color)
 

@@ -17,8 +17,9 @@ import numpy as np
 import moderngl
 from renderer_gl import constants as C
 from renderer_gl import gl_direct
-from renderer_gl.camera import jacobian_limits, view
+from renderer_gl.camera import view
 from training.scene.camera import Camera
+from training.scene.pose import jacobian_limits
 from renderer_gl.context import is_software_gl
 from renderer_gl.overlays import Lines
 from renderer_gl.shader_source import source
@@ -265,7 +266,7 @@ class SplatRenderer:
         _set(prog, "u_campos", tuple(float(x) for x in v.center))
         _set(prog, "u_intr", (v.fx, v.fy, v.cx, v.cy))
         _set(prog, "u_size", (float(v.width), float(v.height)))
-        _set(prog, "u_lim", jacobian_limits(v))
+        _set(prog, "u_lim", jacobian_limits(v, C.FOV_CLAMP_MARGIN))
         _set(prog, "u_near", params["near"])
         _set(prog, "u_far", params["far"])
         _set(prog, "u_eps2d", params["eps2d"])

@@ -2,7 +2,8 @@
 # The GPU check of docs/gpu.md: what a session lent an NVIDIA GPU machine (no network, python3 with a CUDA torch)
 # runs there, in a few device calls, each writing into one output folder ($OUT).
 #
-#   bash scripts/gpu_check.sh prepare [base|live]...  here, with PyPI and Debian reachable: fills the carried folders
+#   bash scripts/gpu_check.sh prepare [base|live|styl]...  here, with PyPI and Debian reachable: fills the carried
+#                                                     folders
 #   bash scripts/gpu_check.sh sizes                   what each call carries, against the 64 MiB a call may carry
 #   bash scripts/gpu_check.sh run PART...             there (or here, to check it: CUDA steps then say why they skip)
 #
@@ -16,6 +17,12 @@
 #   live     `bench viewer --live` on the fox (.gpu_live): the reconstruction (standard preset) and the
 #            stylization (paper preset) on CUDA with the viewer window open, steps/s against headless, and the
 #            input-to-frame latency; needs base's packages and .whl/live's
+#   styl     the content-balance check (issue 43 item 2): the fox reconstructed at the standard preset on CUDA,
+#            then stylized with the defaults at the paper preset (1600 px) and at the standard one (512 px), each
+#            with its report and contact sheet; a short lease's call of its own, carrying .whl/styl, .gpu_styl
+#            (the fox, the painting, the VGG weights, gsplat's build from an earlier call's gpu_build.tar.gz).
+#            `prepare styl` needs that tarball at .gpu_styl/gpu_build.tar.gz to skip gsplat's 85 s compile.
+#            STYL_RUNS picks among paper,standard,paper_old (the pre-issue-37 settings at the paper preset)
 # Device calls (the device tool; carry the folders named):
 #   1. command "bash scripts/gpu_check.sh run base display", carry [".whl/base", ".gl"]           (~6 min)
 #   2. command "bash scripts/gpu_check.sh run live", carry [".whl/live", ".gl", ".gpu_live"]       (~7 min)
@@ -31,6 +38,9 @@ REPO="$(pwd)"
 PY="${PY:-python3}"
 PYVER=3.12  # the device machines' python3 (docs/gpu.md); the carried wheels are built for it
 
+# pycolmap 3.12.6 (20 MB, where 4.x is 38): enough to read scenes; writing a COLMAP model (the demo scene, which
+# `bench gpu` without --data generates) needs 4.x, so the base call passes the fox instead
+STYL_WHEELS=(gsplat==1.5.3 OpenImageIO==3.2.2.0 pycolmap==3.12.6)
 BASE_WHEELS=(gsplat==1.5.3 moderngl==5.13.0 glcontext==3.1.0 cuda-bindings==13.4.4 cuda-pathfinder==1.9.1
              OpenImageIO==3.2.2.0 pycolmap==3.12.6)
 LIVE_WHEELS=(imgui-bundle==1.93.0 glfw==2.11.0)
@@ -51,7 +61,7 @@ die() { echo "gpu_check: $*" >&2; exit 2; }
 exclude() {  # the carried folders stay out of git (a worktree's exclude file is the common one)
   local f; f="$(git rev-parse --git-path info/exclude)"
   mkdir -p "$(dirname "$f")"
-  for p in /.whl/ /.gl/ /.gpu_live/ /.gpu_build/; do grep -qxF "$p" "$f" 2>/dev/null || echo "$p" >>"$f"; done
+  for p in /.whl/ /.gl/ /.gpu_live/ /.gpu_build/ /.gpu_styl/; do grep -qxF "$p" "$f" 2>/dev/null || echo "$p" >>"$f"; done
 }
 
 wheels() {  # wheels() DIR SPEC...: binary wheels for the device's python3, without dependencies (all listed)
@@ -92,6 +102,25 @@ EOF
 torch.save(r().state_dict, sys.argv[1])' "$dest/vgg16_features16.pth" || die "could not find or make the VGG weights"
 }
 
+prepare_styl_data() {  # the fox at JPEG quality STYL_QUALITY, the painting, the VGG weights; the build if given
+  local fox="$SHARED/data/scenes/fox" dest=.gpu_styl
+  [ -f "$fox/transforms.json" ] || die "no fox at $fox (set SHARED=the shared folder)"
+  rm -rf "$dest/fox" && mkdir -p "$dest/fox/images"
+  cp "$fox/transforms.json" "$dest/fox/"
+  "$PY" - "$fox/images" "$dest/fox/images" "${STYL_QUALITY:-80}" <<'EOF2' || die "re-encoding the fox failed"
+import sys
+from pathlib import Path
+from PIL import Image
+src, dst, q = Path(sys.argv[1]), Path(sys.argv[2]), int(sys.argv[3])
+for f in sorted(src.glob("*.jpg")):
+    Image.open(f).save(dst / f.name, quality=q)
+EOF2
+  cp "$SHARED/data/styles/starry_night.jpg" "$dest/style.jpg" || die "no painting in $SHARED/data/styles"
+  "$PY" -c 'import sys, torch; from training.stylize.vgg_weights import resolve_vgg_weights as r
+torch.save(r().state_dict, sys.argv[1])' "$dest/vgg16_features16.pth" || die "could not find or make the VGG weights"
+  [ -f "$dest/gpu_build.tar.gz" ] || echo "gpu_check: no $dest/gpu_build.tar.gz: gsplat will compile there (85 s)"
+}
+
 prepare() {
   exclude
   local parts=("$@"); [ ${#parts[@]} -gt 0 ] || parts=(base live)
@@ -100,7 +129,8 @@ prepare() {
       base) rm -rf .whl/base; wheels .whl/base "${BASE_WHEELS[@]}"; rm -rf .gl; debs .gl "${GL_DEBS[@]}" ;;
       live) rm -rf .whl/live .gpu_live/xvfb; wheels .whl/live "${LIVE_WHEELS[@]}"
             debs .gpu_live/xvfb "${XVFB_DEBS[@]}"; prepare_live_data ;;
-      *) die "unknown part to prepare: $part (base or live)" ;;
+      styl) rm -rf .whl/styl; wheels .whl/styl "${STYL_WHEELS[@]}"; prepare_styl_data ;;
+      *) die "unknown part to prepare: $part (base, live or styl)" ;;
     esac
   done
   sizes
@@ -178,7 +208,8 @@ for stage in ("reconstruct", "stylize"):
 if rows:
     (work / "live.json").write_text(json.dumps(rows, indent=1))
 EOF
-  tar -czf "$OUT/results.tar.gz" -C "$WORK" . 2>/dev/null
+  # the models, checkpoints and renders stay there (tens of MB each; 16 MiB come back a file)
+  tar -czf "$OUT/results.tar.gz" --exclude='*.ply' --exclude='*.pt' --exclude=renders -C "$WORK" . 2>/dev/null
   for f in bench_gpu/bench_gpu.md bench_gpu/bench_gpu.json live.json; do
     [ -f "$WORK/$f" ] && cp "$WORK/$f" "$OUT/"
   done
@@ -313,6 +344,43 @@ print("window on", p, ":", ctx.info["GL_VENDOR"], "|", ctx.info["GL_RENDERER"])'
   timeout 60 "$PY" -c "$probe"
 }
 
+install_styl() {  # the wheels, and gsplat's build from the tarball behind a gsplat.csrc module (no JIT compile)
+  local have; have="$("$PY" -c 'import sys; print("%d.%d" % sys.version_info[:2])')"
+  [ "$have" = "$PYVER" ] || { echo "the carried wheels are for Python $PYVER, $PY is $have: not installed"; return 0; }
+  "$PY" -m pip install -q --no-index --no-deps --no-compile --no-cache-dir --upgrade --target /tmp/site .whl/styl/*.whl
+  if [ -f .gpu_styl/gpu_build.tar.gz ]; then
+    mkdir -p /tmp/gsplat_build && tar -xzf .gpu_styl/gpu_build.tar.gz -C /tmp/gsplat_build
+    local so; so="$(find /tmp/gsplat_build -name gsplat_cuda.so | head -1)"
+    # gsplat imports a prebuilt ``gsplat.csrc`` before it compiles: this one loads the carried build
+    cat >/tmp/site/gsplat/csrc.py <<EOF2
+import importlib.util as _u
+_spec = _u.spec_from_file_location("gsplat_cuda", "$so")
+_m = _u.module_from_spec(_spec)
+_spec.loader.exec_module(_m)
+globals().update({k: getattr(_m, k) for k in dir(_m) if not k.startswith("__")})
+EOF2
+    echo "gsplat: the carried build $so"
+  fi
+}
+
+styl() {  # styl RUN: reconstruct (standard, CUDA) once, then the stylization RUN of it
+  local run="$1" data=.gpu_styl/fox recon="$WORK/fox_standard"
+  export SPLATSTYLER_VGG_WEIGHTS="$REPO/.gpu_styl/vgg16_features16.pth"
+  local why; why="$(no_cuda)"; [ -z "$why" ] || { echo "skipped: $why"; return 0; }
+  if [ "$run" = reconstruct ]; then
+    "$PY" -m app reconstruct "$data" -o "$recon" --preset standard --backend cuda --no-progress
+    return
+  fi
+  [ -f "$recon/point_cloud.ply" ] || { echo "skipped: no reconstruction"; return 0; }
+  local args=(--preset "${run%_old}")
+  # the settings before issue 37 (docs/stylization.md, "The content balance")
+  [ "${run%_old}" != "$run" ] && args+=(--content-norm mse --lambda-content 0.005 --content-source photo
+                                        --style-scale 1 --no-dc-only --lr 0.02 --lr-final 1 --lambda-tv 0 --k 16)
+  "$PY" -m app stylize "$recon/point_cloud.ply" --data "$data/transforms.json" --style .gpu_styl/style.jpg \
+    -o "$WORK/styl_$run" --backend cuda --device cuda --no-progress "${args[@]}"
+  cp "$WORK/styl_$run/before_after.png" "$OUT/styl_$run.png"  # the reports come back in results.tar.gz
+}
+
 live() {  # live STAGE: the reconstruction's phases, or the stylization's (after a headless reconstruction)
   local stage="$1"
   [ -f "$WORK/window.env" ] && . "$WORK/window.env"
@@ -361,14 +429,19 @@ run() {
         step window 150 window
         step live_reconstruct 240 live reconstruct
         step live_stylize 300 live stylize ;;
-      *) die "unknown part: $part (base, display or live)" ;;
+      styl)
+        step install_styl 120 install_styl
+        environment
+        step reconstruct 300 styl reconstruct
+        for run in $(echo "${STYL_RUNS:-paper,standard}" | tr , ' '); do step "styl_$run" 400 styl "$run"; done ;;
+      *) die "unknown part: $part (base, display, live or styl)" ;;
     esac
   done
   note "- done in $(( $(date +%s) - START )) s"
   collect
 }
 
-export -f install install_live machine no_cuda gsplat_build pack_build bench window live environment
+export -f install install_live install_styl styl machine no_cuda gsplat_build pack_build bench window live environment
 export PY REPO SHARED PYVER OUT
 
 case "${1:-}" in

@@ -9,10 +9,10 @@ import math
 import numpy as np
 import pytest
 
-from app.camera_path import (CameraPath, dataset_path, keyframe_from, look_at, matrix_to_quat, orbit_path,
-                             quat_to_matrix, slerp)
+from app.camera_path import CameraPath, dataset_path, keyframe_from, orbit_path
 from training.core.errors import InputError
 from training.scene.camera import Camera
+from training.scene.pose import look_at, matrix_to_quat, quat_to_matrix, slerp
 
 
 def key(eye, target=(0, 0, 0), w=640, h=360, f=500.0) -> Camera:
@@ -110,6 +110,7 @@ def good() -> dict:
     (lambda d: {**d, "keyframes": [{k: v for k, v in d["keyframes"][0].items() if k != "fx"}]}, "lacks fx"),
     (lambda d: {**d, "keyframes": [{**d["keyframes"][0], "width": 640.5}]}, "whole numbers"),
     (lambda d: {**d, "keyframes": [{**d["keyframes"][0], "fy": -1}]}, "positive"),
+    (lambda d: '{"keyframes": ' + "[" * 100_000 + "]" * 100_000 + "}", "nests its JSON too deeply"),
 ])
 def test_bad_path_files_are_one_line(tmp_path, damage, words):
     bad = damage(good())
@@ -131,3 +132,19 @@ def test_orbit_and_look_at_keep_the_given_up_at_the_top_of_the_image():
         v = key.fy * above[1] / above[2] + key.cy
         assert v < key.cy - 1.0
         assert np.isclose(np.linalg.det(w2c[:3, :3]), 1.0)  # a rotation, not a reflection
+
+
+def test_the_timing_is_checked_without_keyframes_and_frames_are_made_one_at_a_time():
+    """A path with no keyframes yet (a project's; the viewer adds them) still gets its duration and fps checked;
+    ``iter_cameras`` makes the frames' cameras lazily, the same ones ``cameras`` lists."""
+    with pytest.raises(InputError, match="fps must be in"):
+        CameraPath([], duration=1e7, fps=1e6).validate_timing("p.json")
+    with pytest.raises(InputError, match="600000 frames"):
+        CameraPath([], duration=1e4, fps=60).validate_timing("p.json")
+    CameraPath([], duration=8, fps=30).validate_timing("p.json")
+    path = orbit_path((0, 0, 0), 3.0, up=(0, -1, 0), seconds=2.0, fps=10, keyframes=4)
+    frames = path.iter_cameras(64, 48)
+    first = next(frames)
+    assert np.allclose(first.world_to_camera, path.camera_at(0.0, 64, 48).world_to_camera)
+    assert [c.world_to_camera.tolist() for c in [first, *frames]] == [c.world_to_camera.tolist()
+                                                                     for c in path.cameras(64, 48)]

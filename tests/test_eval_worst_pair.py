@@ -97,7 +97,7 @@ def test_planted_blotch_makes_its_pairs_the_worst(evaluated):
     grid_path, out = evaluated
     grid = load_grid(grid_path)
     job = next(j for j in grid.cells if j.spec["setting"] == "ccft")
-    views = cell_views(Path(job.spec["data"]), Path(job.spec["painting_path"]), job.spec["flags"])
+    views = cell_views(Path(job.spec["data"]), job.spec["flags"])
     renders = render_pair_views(job_dir(out, job) / "point_cloud.ply", views)
     before = pair_rmses(renders, views.cameras, views.pairs)
     # paint a bright square onto one view: the pairs that hold it must become the least consistent

@@ -13,6 +13,7 @@ from training.core.errors import InputError
 from training.model.gaussian_init import (MIN_SCALE_RELATIVE, RANDOM_NEAR, gaussians_from_points, gaussians_random,
                                           random_view_points)
 from training.model.gaussians import sh0_to_rgb
+from training.scene.pose import look_at as look_at_matrix
 from training.scene.scene import Camera, Scene
 
 
@@ -80,16 +81,8 @@ def test_degenerate_point_clouds_name_the_source(pts, words):
 
 
 def look_at(center, target, name, w=64, h=48, f=40.0) -> Camera:
-    center, target = np.asarray(center, float), np.asarray(target, float)
-    z = (target - center) / np.linalg.norm(target - center)
-    x = np.cross(z, [0.0, 0.0, -1.0])
-    x /= np.linalg.norm(x)
-    y = np.cross(z, x)
-    R = np.stack([x, y, z])
-    w2c = np.eye(4)
-    w2c[:3, :3] = R
-    w2c[:3, 3] = -R @ center
-    return Camera(name, w, h, f, f * 1.1, w * 0.45, h * 0.55, w2c)
+    """A camera at ``center`` looking at ``target``, world -z up in its image, its principal point off centre."""
+    return Camera(name, w, h, f, f * 1.1, w * 0.45, h * 0.55, look_at_matrix(center, target, up=(0.0, 0.0, -1.0)))
 
 
 def ring_scene(n=9) -> Scene:

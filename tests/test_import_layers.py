@@ -1,12 +1,16 @@
 """Imports run one way: core, scene and model at the bottom, raster above them, the trainers above that, the
 evaluation (training/evaluate) above the trainers, the app on top. The test reads every module's imports (those
-inside functions too) and fails on one that goes the wrong way.
+inside functions too, and those made with ``importlib.import_module``) and fails on one that goes the wrong way. A
+trainer's checkpoint is its own (the file format is training/core's), and the pose maths has one home
+(training/scene/pose.py).
 
-Within the app: no module imports another in a circle (an import inside a function counts as much as one at the top,
-so none can be there to dodge a circle); the viewer's window (app/viewer/app.py) is its top, imported by nothing of
-the viewer; a panel (app/viewer/*_panel.py) is a leaf, imported only by the layout and importing no other panel;
-only app/cli.py imports the commands; the edited document and what it is made of import no UI; and a module's
-``_private`` names are used only inside it."""
+Within the app: no module imports another in a circle (an import inside a function or through importlib counts as
+much as one at the top, so none can be there to dodge a circle, and an importlib name the test cannot read is
+refused); the viewer's window (app/viewer/app.py) is its top, imported by nothing of the viewer; a panel
+(app/viewer/*_panel.py) is a leaf, imported only by the layout and importing no other panel; only app/cli.py imports
+the commands, and nothing imports app/cli.py but ``python -m app`` (app/__main__.py): the CLI is a front-end, not a
+library; the edited document and what it is made of import no UI; and a module's ``_private`` names are used only
+inside it."""
 
 from __future__ import annotations
 
@@ -21,21 +25,46 @@ ROOT = Path(__file__).resolve().parents[1]
 # training packages, bottom to top: a package may import its own modules and those of lower rank
 TRAINING_RANKS = {"core": 0, "scene": 1, "model": 2, "raster": 3, "reconstruct": 4, "stylize": 5, "evaluate": 6}
 GUI_MODULES = ("moderngl", "glfw", "imgui_bundle", "OpenGL", "glcontext")
-# renderer_gl may read these torch-free modules and nothing else of the engine: one source of defaults, one camera
-RENDERER_MAY_IMPORT = ("training.raster.constants", "training.model.sh_constants", "training.scene.camera")
+# renderer_gl may read these torch-free modules and nothing else of the engine: one source of defaults, one camera and
+# its pose maths
+RENDERER_MAY_IMPORT = ("training.raster.constants", "training.model.sh_constants", "training.scene.camera",
+                       "training.scene.pose")
 
 
 def modules(top: str) -> list[Path]:
     return sorted(p for p in (ROOT / top).rglob("*.py") if "__pycache__" not in p.parts)
 
 
+UNREADABLE = "?"  # an importlib import whose module name is computed where the test cannot read it
+
+
+def importlib_target(node: ast.AST) -> str | None:
+    """The module an ``importlib.import_module(...)`` (or ``import_module``, ``__import__``) call imports: its name,
+    ``prefix.*`` for a name built on a written prefix (f"app.commands.{name}": any module there), UNREADABLE for
+    one computed elsewhere; None for any other node."""
+    if not isinstance(node, ast.Call) or not node.args:
+        return None
+    f = node.func
+    if not ((isinstance(f, ast.Attribute) and f.attr == "import_module")
+            or (isinstance(f, ast.Name) and f.id in ("import_module", "__import__"))):
+        return None
+    arg = node.args[0]
+    if isinstance(arg, ast.Constant) and isinstance(arg.value, str):
+        return arg.value
+    if isinstance(arg, ast.JoinedStr) and arg.values and isinstance(arg.values[0], ast.Constant):
+        return arg.values[0].value.rstrip(".") + ".*"
+    return UNREADABLE
+
+
 def imports_of(path: Path) -> list[tuple[int, str]]:
-    """(line, absolute module name) of every import in the file, relative ones resolved."""
+    """(line, absolute module name) of every import in the file, relative ones resolved, importlib's included."""
     tree = ast.parse(path.read_text(), filename=str(path))
     package = ".".join(path.relative_to(ROOT).with_suffix("").parts[:-1])
     found = []
     for node in ast.walk(tree):
-        if isinstance(node, ast.Import):
+        if (target := importlib_target(node)) is not None:
+            found.append((node.lineno, target))
+        elif isinstance(node, ast.Import):
             found += [(node.lineno, alias.name) for alias in node.names]
         elif isinstance(node, ast.ImportFrom):
             if node.level:
@@ -70,6 +99,9 @@ def violations() -> list[str]:
                     out.append(f"{where}: {own} is below {parts[1]}")
                 if is_under(name, "training.raster.reference") and own != "raster":
                     out.append(f"{where}: the trainers take nothing from the test reference")
+                if len(parts) > 2 and parts[2] == "checkpoint" and parts[1] not in (own, "core"):
+                    out.append(f"{where}: a trainer's checkpoint is its own (the file format is "
+                               "training/core/checkpoint.py)")
     for path in modules("renderer_gl"):
         rel = path.relative_to(ROOT)
         for line, name in imports_of(path):
@@ -105,13 +137,21 @@ def resolve(name: str, known: dict[str, Path]) -> str | None:
     return None
 
 
+def resolved(imported: str, known: dict[str, Path]) -> set[str]:
+    """The project modules an imported name is (every one under ``prefix`` for ``prefix.*``)."""
+    if imported.endswith(".*"):
+        return {m for m in known if is_under(m, imported[:-2]) and m != imported[:-2]}
+    found = resolve(imported, known)
+    return {found} if found else set()
+
+
 def app_graph(known: dict[str, Path]) -> dict[str, set[str]]:
-    """module -> the app modules it imports (anywhere in the file)."""
+    """module -> the app modules it imports (anywhere in the file, through importlib too)."""
     graph = {}
     for name, path in known.items():
         if is_under(name, "app"):
-            found = {resolve(imported, known) for _, imported in imports_of(path)}
-            graph[name] = {m for m in found if m and is_under(m, "app") and m != name}
+            found = set().union(*(resolved(imported, known) for _, imported in imports_of(path)))
+            graph[name] = {m for m in found if is_under(m, "app") and m != name}
     return graph
 
 
@@ -173,10 +213,27 @@ def private_uses(path: Path, known: dict[str, Path]) -> list[tuple[int, str]]:
     return out
 
 
+def cli_imports(known: dict[str, Path]) -> list[str]:
+    """Imports of app.cli (and importlib names the test cannot read) anywhere in app/, training/ and renderer_gl/
+    but app/__main__.py."""
+    out = []
+    for name, path in sorted(known.items()):
+        if not any(is_under(name, top) for top in ("app", "training", "renderer_gl")) or name == "app.__main__":
+            continue
+        for line, imported in imports_of(path):
+            if imported == UNREADABLE:
+                out.append(f"{name}:{line} imports a module by a name computed at run time: the layers cannot be "
+                           "checked; import it by name")
+            elif "app.cli" in resolved(imported, known):
+                out.append(f"{name}:{line} imports app.cli: the CLI is a front-end; call the library function it "
+                           "calls")
+    return list(dict.fromkeys(out))  # "from app.cli import main" names app.cli twice
+
+
 def app_violations() -> list[str]:
     known = project_modules()
     graph = app_graph(known)
-    out = [f"import circle: {' -> '.join(c)}" for c in cycles(graph)]
+    out = [f"import circle: {' -> '.join(c)}" for c in cycles(graph)] + cli_imports(known)
     for name, imported in sorted(graph.items()):
         leaf = name.rpartition(".")[2]
         for m in sorted(imported):
@@ -201,6 +258,30 @@ def app_violations() -> list[str]:
     return out
 
 
+# the pose maths has one home, training/scene/pose.py: no other module defines these again
+POSE_FUNCTIONS = ("look_at", "orbit", "slerp", "catmull_rom", "matrix_to_quat", "quat_to_matrix", "rotation_to_quat",
+                  "quat_to_rotation", "interpolate_camera", "jacobian_limits", "splat_footprints")
+POSE_MODULE = "training/scene/pose.py"
+
+
+def pose_copies() -> list[str]:
+    out = []
+    for top in ("app", "training", "renderer_gl", "assets"):
+        for path in modules(top):
+            rel = path.relative_to(ROOT)
+            if rel.as_posix() == POSE_MODULE:
+                continue
+            for node in ast.parse(path.read_text(), filename=str(path)).body:  # functions, not a class's methods
+                if isinstance(node, ast.FunctionDef) and node.name.lstrip("_") in POSE_FUNCTIONS:
+                    out.append(f"{rel}:{node.lineno} defines {node.name}: the pose maths is {POSE_MODULE}'s")
+    return out
+
+
+def test_the_pose_maths_has_one_home():
+    found = pose_copies()
+    assert not found, "\n".join(found)
+
+
 def test_imports_run_one_way():
     found = violations()
     assert not found, "\n".join(found)
@@ -214,10 +295,13 @@ def test_the_checker_sees_a_wrong_way_import(tmp_path, monkeypatch):
         shutil.copytree(ROOT / top, tmp_path / top, ignore=shutil.ignore_patterns("__pycache__"))
     (tmp_path / "training" / "scene" / "bad.py").write_text(
         "def f():\n    from training.stylize.trainer import Stylizer\n    import moderngl\n")
+    (tmp_path / "training" / "stylize" / "sideways.py").write_text(
+        "from training.reconstruct.checkpoint import load_checkpoint\n")
     monkeypatch.setattr(sys.modules[__name__], "ROOT", tmp_path)
     found = violations()
     assert any("bad.py:2 imports training.stylize.trainer: scene is below stylize" in v for v in found), found
     assert any("bad.py:3 imports moderngl" in v for v in found), found
+    assert any("sideways.py:1 imports training.reconstruct.checkpoint: a trainer's checkpoint" in v for v in found)
 
 
 def test_the_app_has_no_circles_and_its_panels_are_leaves():
@@ -226,8 +310,10 @@ def test_the_app_has_no_circles_and_its_panels_are_leaves():
 
 
 def test_the_app_checker_sees_a_circle_a_panel_import_and_a_private_name(tmp_path, monkeypatch):
-    """Planted in a copy of the tree: a circle closed by an import inside a function, a panel that imports another,
-    a document that imports imgui, and another module's private name; each is reported."""
+    """Planted in a copy of the tree: a circle closed by an import inside a function, one closed through importlib
+    with a name built on a prefix, a panel that imports another, a document that imports imgui, another module's
+    private name, the CLI imported as a library, and importlib with a name the checker cannot read; each is
+    reported."""
     import shutil
 
     for top in ("app", "training", "renderer_gl", "assets"):
@@ -240,8 +326,17 @@ def test_the_app_checker_sees_a_circle_a_panel_import_and_a_private_name(tmp_pat
     (viewer / "document.py").write_text((viewer / "document.py").read_text() + "\nfrom imgui_bundle import imgui\n")
     (viewer / "files.py").write_text((viewer / "files.py").read_text()
                                      + "\nfrom app.viewer.session import _one_line\n")
+    evaluate = tmp_path / "app" / "evaluate"
+    (evaluate / "grid.py").write_text((evaluate / "grid.py").read_text() + "\n\ndef hidden(name):\n"
+                                      "    import importlib\n    return importlib.import_module(f'app.commands.{name}')"
+                                      "\n\n\ndef run():\n    from app.cli import main\n\n\n"
+                                      "def unseen(name):\n    return importlib.import_module(name)\n")
     monkeypatch.setattr(sys.modules[__name__], "ROOT", tmp_path)
     found = app_violations()
+    assert any(v.startswith("import circle:") and "app.evaluate.grid" in v and "app.commands.eval" in v
+               for v in found), found
+    assert any(v.startswith("app.evaluate.grid:") and "imports app.cli: the CLI is a front-end" in v for v in found)
+    assert any(v.startswith("app.evaluate.grid:") and "by a name computed at run time" in v for v in found), found
     assert any(v.startswith("import circle:") and "app.viewer.selection" in v and "app.viewer.document" in v
                for v in found), found
     assert any("colour_panel imports app.viewer.style_panel: panels do not import each other" in v for v in found)
@@ -250,8 +345,8 @@ def test_the_app_checker_sees_a_circle_a_panel_import_and_a_private_name(tmp_pat
 
 
 @pytest.mark.parametrize("module", ["training.stylize.defaults", "training.raster.constants",
-                                    "training.model.sh_constants", "training.scene.camera",
-                                    "renderer_gl"])
+                                    "training.reconstruct.config", "training.model.sh_constants",
+                                    "training.scene.camera", "training.scene.pose", "renderer_gl"])
 def test_light_modules_load_without_torch(module):
     """The CLI's help text and the renderer read these; loading them must not load torch."""
     if not (ROOT / (module.replace(".", "/") + ".py")).exists() and not (ROOT / module).is_dir():

@@ -213,3 +213,40 @@ def test_a_live_delete_is_taken_by_a_paused_trainer_that_just_densified(tmp_path
         assert len(trainer.gaussians) == n - (n + 1) // 2
     finally:
         app.session.close()
+
+
+def test_a_call_submitted_as_the_run_ends_is_answered():
+    """submit() in the moment the training thread has answered the calls queued (its run over) and is about to end:
+    the call is refused at once (ValueError, as when no trainer runs), not queued where nobody will answer it (its
+    Future pending for ever, the UI's pending edit with it). The thread is held in that moment."""
+    import threading
+
+    answered, release = threading.Event(), threading.Event()
+
+    class HeldAtTheEnd(LiveSession):
+        def _trainer_gone(self):
+            super()._trainer_gone()
+            answered.set()
+            release.wait(60)
+
+    def build(_previous):
+        trainer = tiny_reconstructor(enabled=False)
+        trainer.config.iterations = 2
+        return trainer
+
+    session = HeldAtTheEnd()
+    session.start([Stage("reconstruct", build, lambda *a: None)])
+    try:
+        wait(answered.is_set, 120, "the run to end")
+        assert session.running  # the thread is still there: what the UI sees
+        future = None
+        try:
+            future = session.submit(lambda trainer: trainer)
+        except ValueError as exc:
+            assert str(exc) == "no trainer is running"
+        release.set()
+        session.close()
+        assert future is None or future.done(), "the call was queued after the last answer: it never resolves"
+    finally:
+        release.set()
+        session.close()

@@ -135,3 +135,20 @@ def test_nothing_reads_a_model_file_but_read_model():
                 if isinstance(node, ast.ImportFrom) and any(a.name in readers for a in node.names):
                     offenders.append(f"{path.relative_to(ROOT)}:{node.lineno}")
     assert offenders == []
+
+
+def test_a_log_scale_float32_cannot_square_is_refused_and_one_it_can_exports_and_reads_back(tmp_path):
+    """A finite log-scale of 100 (a scale of 2.7e43, infinite in float32) is refused where the model enters; before,
+    it was read, and its .splat and .glb exports held an infinite scale our own readers then refused. At the bound,
+    every format writes a file that reads back."""
+    from training.model.model_io import MAX_LOG_SCALE
+
+    g = model()
+    g.log_scales[0, 1] = 100.0
+    with pytest.raises(InputError, match=r"1 of 300 Gaussians have a log-scale above 44.36 \(up to 100\)"):
+        read_model(written(tmp_path, "ply", g))
+    g.log_scales[0, 1] = MAX_LOG_SCALE - 0.01
+    source = read_model(written(tmp_path, "ply", g))
+    for fmt in ("splat", "glb"):  # the formats that store the scale itself, not its log
+        back = read_model(written(tmp_path, fmt, source))
+        assert torch.isfinite(back.log_scales).all() and float(back.log_scales.max()) > 40, fmt

@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 import torch
 
-from app.camera_path import quat_to_matrix
+from training.scene.pose import quat_to_matrix
 from tests.raster_scenes import random_scene
 from training.model.gaussians import Gaussians
 from training.model.rotation import quat_to_rotmat

@@ -11,7 +11,7 @@ import numpy as np
 import pytest
 
 from app.viewer.session import LiveSession, SessionMessage
-from app.viewer.sfm_run import SfmSettings
+from app.settings.sfm import options_from_flags
 from app.viewer.stages import reconstruct_stage, sfm_stage
 from training.core.messages import TrainerEvent
 from training.scene.image_io import read_image, resize_image, write_image
@@ -20,7 +20,7 @@ from training.scene.sfm import partial_folder
 SHARED = Path(__file__).resolve().parents[1].parent / "shared"
 FERN = SHARED / "data" / "scenes" / "llff_fern" / "images"
 needs_fern = pytest.mark.skipif(not FERN.is_dir(), reason="shared llff_fern photos not available (../shared)")
-QUICK = SfmSettings(max_features=1024)
+QUICK = options_from_flags(["--max-features", "1024"])
 
 
 @pytest.fixture(scope="module")

@@ -13,23 +13,16 @@ from training.evaluate.consistency import consistency_metrics
 from training.evaluate.measure import render_with_depth
 from training.evaluate.path_consistency import path_consistency, smooth_path
 from training.model.gaussian_init import gaussians_from_points
+from training.scene.pose import look_at as look_at_matrix
 from training.scene.scene import Camera
 
 STRENGTHS = (0.0, 0.05, 0.15, 0.45)  # standard deviation of the random SH coefficients above band 0
 
 
 def look_at(centre, target, name, width=64, height=48, focal=80.0) -> Camera:
-    """An OpenCV camera (x right, y down, z forward) at ``centre`` looking at ``target``, world y up."""
-    centre, target = np.asarray(centre, float), np.asarray(target, float)
-    z = target - centre
-    z /= np.linalg.norm(z)
-    x = np.cross(z, [0.0, 1.0, 0.0])
-    x /= np.linalg.norm(x)
-    y = np.cross(z, x)
-    w2c = np.eye(4)
-    w2c[:3, :3] = np.stack([x, y, z])
-    w2c[:3, 3] = -w2c[:3, :3] @ centre
-    return Camera(name, width, height, focal, focal, width / 2, height / 2, w2c)
+    """A camera at ``centre`` looking at ``target``, world y up in its image."""
+    return Camera(name, width, height, focal, focal, width / 2, height / 2,
+                  look_at_matrix(centre, target, up=(0.0, 1.0, 0.0)))
 
 
 @pytest.fixture(scope="module")

@@ -178,6 +178,11 @@ def test_an_older_version_is_upgraded_through_the_migrations(tmp_path, monkeypat
     ({"version": 1, "models": [{"path": "m.ply", "kept": "arrays/k.npy"}]}, "names arrays/k.npy, which is not"),
     ({"version": 1, "models": [{"path": "m.ply", "colour": [{"hue": 400}]}]}, "hue must be in [-180, 180]"),
     ({"version": 1, "models": [{"path": "m.ply", "strength": 0.5}]}, "style strength below 1 needs an 'original'"),
+    ({"version": 1, "models": [], "up": [1e308, 1e308, 0]}, "'up' must be a direction"),  # its norm overflows
+    ({"version": 1, "models": [], "camera_path": {"keyframes": [], "duration": 1e7, "fps": 1e6}},
+     "fps must be in (0, 240]"),  # checked with no keyframes too: the viewer adds them and renders the path
+    ({"version": 1, "models": [], "camera_path": {"keyframes": [], "duration": 1e4, "fps": 60}},
+     "600000 frames"),
 ])
 def test_what_is_not_a_project_is_one_line(tmp_path, content, message):
     write_ply(tmp_path / "m.ply", model())
@@ -207,3 +212,41 @@ def test_mismatched_array_lengths_and_a_failed_save_lose_nothing(tmp_path):
         save_project(good, broken, embed=True)
     assert good.read_bytes() == before
     assert sorted(p.name for p in tmp_path.iterdir() if p.name.startswith(".")) == []  # no temporary left
+
+
+def test_a_member_many_regions_name_is_read_once(tmp_path):
+    """200 colour adjustments over one region member of a million rows: the member is inflated once and the
+    regions share it (read 200 times, a 10-million-row one took 2 GB)."""
+    import tracemalloc
+
+    write_ply(tmp_path / "m.ply", model())
+    path = write_manifest(tmp_path / "regions.splatproj",
+                          {"version": 1, "models": [{"path": "m.ply", "colour": [{"region": "arrays/r.npy",
+                                                                                  "hue": 1}] * 200}]},
+                          {"arrays/r.npy": np.zeros(1_000_000, bool)})
+    tracemalloc.start()
+    try:
+        q, problems = open_project(path)
+        peak = tracemalloc.get_traced_memory()[1]
+    finally:
+        tracemalloc.stop()
+    regions = [region for region, _ in q.models[0].colour.adjustments]
+    assert len(regions) == 200 and all(r is regions[0] for r in regions) and len(regions[0]) == 1_000_000
+    assert peak < 20e6, f"{peak / 1e6:.0f} MB to open it"
+
+
+def test_stylize_settings_that_are_not_numbers_of_their_kind_are_one_line_and_the_defaults_used(tmp_path):
+    """JSON's Infinity for tau, a float where a whole number goes (k, seed): each is one problem line and the
+    project opens with the default settings, which a stylization can run with (Infinity ran before)."""
+    write_ply(tmp_path / "m.ply", model())
+    for stylize, word in (({"tau": float("inf")}, "tau must be a finite number, got inf"),
+                          ({"k": 4.0}, "k must be a whole number, got 4.0"),
+                          ({"seed": 1.5}, "seed must be a whole number, got 1.5")):
+        path = write_manifest(tmp_path / "s.splatproj", {"version": 1, "models": [{"path": "m.ply"}],
+                                                          "stylize": stylize})
+        assert "Infinity" in zipfile.ZipFile(path).read("project.json").decode() or "inf" not in word
+        q, problems = open_project(path)
+        assert q.stylize == {} and len(problems) == 1 and word in problems[0], problems
+    path = write_manifest(tmp_path / "ok.splatproj", {"version": 1, "models": [{"path": "m.ply"}],
+                                                       "stylize": {"k": 4, "tau": 0.5}})
+    assert open_project(path)[0].stylize_config().k == 4

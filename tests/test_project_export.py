@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 import torch
 
-from app.camera_path import quat_to_matrix
+from training.scene.pose import quat_to_matrix
 from app.cli import main
 from app.project import FileRef, ModelEntry, Project, save_project
 from training.model.colour_edit import ColourAdjustment, ColourEdits, adjust_sh, blend_style

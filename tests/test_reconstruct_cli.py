@@ -133,3 +133,57 @@ def test_bench_reconstruct_reports_phases(demo_folder, capsys):
     assert min(rows[0][f"ms_{k}"] for k in ("rasterize", "loss", "backward")) > 0
     assert rows[0]["it_per_s"] == pytest.approx(1e3 / rows[0]["ms_total"])
     assert 3 * rows[0]["ms_total"] < wall_ms  # the 3 timed iterations ran inside the call
+
+
+def test_resume_refuses_settings_that_differ_from_the_checkpoint(demo_folder, tmp_path, capsys):
+    """--resume trains on with the checkpoint's settings: a flag that would change them is one line naming it and
+    the checkpoint's value (exit 2, nothing touched), not silently dropped; the same value, --iters and --backend
+    are taken."""
+    out = tmp_path / "out"
+    rc, _ = _run([demo_folder, "-o", out, "--iters", "8", "--max-gaussians", "500", "--seed", "2"], capsys)
+    assert rc == 0
+    before = (out / "checkpoint.pt").read_bytes()
+    rc, cap = _run([demo_folder, "-o", out, "--resume", "--iters", "10", "--max-gaussians", "900", "--seed", "2",
+                    "--no-shape", "--preset", "paper"], capsys)
+    assert rc == 2 and cap.err.count("\n") == 1 and "Traceback" not in cap.err, cap.err
+    assert cap.err.startswith(f"splatstyler: error: {out / 'checkpoint.pt'}: --resume continues")
+    for named in ("--max-gaussians 900 (it has densify.max_gaussians 500)", "--no-shape (it has use_shape True)",
+                  "--preset paper (it has quick)", "--overwrite"):
+        assert named in cap.err, cap.err
+    assert "--seed" not in cap.err and "--iters" not in cap.err  # the checkpoint's own value; a longer run
+    assert (out / "checkpoint.pt").read_bytes() == before
+    rc, cap = _run([demo_folder, "-o", out, "--resume", "--iters", "10", "--max-gaussians", "500", "--seed", "2",
+                    "--backend", "torch"], capsys)
+    assert rc == 0 and "at iteration 8" in cap.err, cap.err
+    config = json.loads((out / "report.json").read_text())["settings"]["config"]
+    assert config["iterations"] == 10 and config["backend"] == "torch" and config["densify"]["max_gaussians"] == 500
+
+
+def test_a_fresh_run_does_not_replace_an_interrupted_runs_checkpoint(demo_folder, tmp_path, capsys, monkeypatch):
+    """A run without --resume in an OUT whose checkpoint is an interrupted run's is refused in one line (exit 2,
+    the checkpoint as it was) unless --overwrite; a finished run's checkpoint is replaced as its model is."""
+    from training.reconstruct.trainer import Reconstructor
+
+    real_step = Reconstructor.step
+
+    def step(self):
+        if self.step_count == 5:
+            raise KeyboardInterrupt
+        return real_step(self)
+
+    out = tmp_path / "out"
+    with monkeypatch.context() as m:
+        m.setattr(Reconstructor, "step", step)
+        rc, _ = _run([demo_folder, "-o", out, "--iters", "12", "--checkpoint-every", "0"], capsys)
+    assert rc == 130
+    before = (out / "checkpoint.pt").read_bytes()
+    rc, cap = _run([demo_folder, "-o", out, "--iters", "12"], capsys)
+    assert rc == 2 and cap.err.count("\n") == 1, cap.err
+    assert cap.err == (f"splatstyler: error: {out / 'checkpoint.pt'}: holds an interrupted run's checkpoint "
+                       "(iteration 5 of 12): continue it with --resume, or start afresh with --overwrite (which "
+                       "replaces it)\n")
+    assert (out / "checkpoint.pt").read_bytes() == before and not (out / "point_cloud.ply").exists()
+    rc, cap = _run([demo_folder, "-o", out, "--iters", "6", "--overwrite"], capsys)
+    assert rc == 0 and "resuming" not in cap.err
+    rc, _ = _run([demo_folder, "-o", out, "--iters", "4"], capsys)  # over a finished run: its files are replaced
+    assert rc == 0 and json.loads((out / "report.json").read_text())["iterations"] == 4

@@ -176,9 +176,10 @@ def test_sigterm_after_the_iterations_keeps_the_model_and_resume_finishes_withou
 
 @pytest.mark.slow
 def test_interrupt_mid_stylization_then_resume_matches_an_uninterrupted_run(tmp_path, capsys, monkeypatch, vgg):
-    """Ctrl-C at the 4th of 10 iterations: exit 130, a model that loads and a checkpoint; --resume goes on from
-    there (optimiser moments and CCFT guide included) to the model an uninterrupted run makes. Another painting, or
-    another fixed setting, is refused with one line."""
+    """Ctrl-C at the 4th of 10 iterations: exit 130, a model that loads and a checkpoint; a run without --resume
+    is refused (it would replace the checkpoint); --resume goes on from there (optimiser moments and CCFT guide
+    included) to the model an uninterrupted run makes. Another painting, or another fixed setting, is refused with
+    one line."""
     from training.model.ply_io import read_ply
     from training.stylize.trainer import Stylizer
 
@@ -203,6 +204,13 @@ def test_interrupt_mid_stylization_then_resume_matches_an_uninterrupted_run(tmp_
     monkeypatch.setattr(Stylizer, "step", real_step)
 
     from training.scene.image_io import write_image
+
+    before = (out / "stylize_checkpoint.pt").read_bytes()  # a run without --resume would replace it: refused
+    assert main(stylize_args(inputs, out, "--no-metrics")) == 2
+    assert capsys.readouterr().err == (f"splatstyler: error: {out / 'stylize_checkpoint.pt'}: holds an interrupted "
+                                       "stylization's checkpoint: continue it with --resume, or start afresh with "
+                                       "--overwrite (which replaces it)\n")
+    assert (out / "stylize_checkpoint.pt").read_bytes() == before
 
     other = tmp_path / "other.png"
     write_image(other, np.full((80, 80, 3), 0.5, dtype=np.float32))
@@ -248,10 +256,9 @@ def test_sfm_killed_mid_run_leaves_nothing_and_the_same_command_succeeds(tmp_pat
     args = [sys.executable, "-m", "app", "sfm", str(photos), "-o", str(data), "--max-features", "1024"]
     proc = subprocess.Popen(args, cwd=ROOT, stdout=subprocess.PIPE, stderr=subprocess.DEVNULL, text=True)
     try:
-        for line in proc.stdout:  # killed once the matching is under way
+        for line in proc.stdout:  # killed as the matching starts (8 small photos match in well under a second)
             if line.startswith("[3/5]"):
                 break
-        time.sleep(0.5)
         assert proc.poll() is None, "sfm ended before it could be killed"
         proc.kill()
         proc.wait(timeout=60)

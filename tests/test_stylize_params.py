@@ -271,3 +271,23 @@ def test_cli_params_all_reaches_the_config_and_the_ply(tmp_path, tiny, vgg):
     result, original = read_ply(out / "point_cloud.ply"), read_ply(tmp_path / "model.ply")
     for name in GEOMETRY:
         assert not torch.equal(getattr(result, name), getattr(original, name)), name
+
+
+def test_settings_that_are_not_numbers_of_their_kind_are_refused_in_one_line(capsys):
+    """A float where a whole number goes and an infinite one are refused where the settings are validated (a
+    project's JSON can hold 4.0 and Infinity; `--tau inf` parses as a float); each line names the setting."""
+    for changes, words in (({"k": 4.0}, "k must be a whole number, got 4.0"),
+                           ({"tau": float("inf")}, "tau must be a finite number, got inf"),
+                           ({"lambda_content": float("nan")}, "lambda_content must be a finite number"),
+                           ({"seed": True}, "seed must be a whole number"),
+                           ({"color_transfer": "yes"}, "color_transfer must be true or false"),
+                           ({"background": (0.0, 2.0, 0.0)}, "background must be 3 numbers in [0, 1]")):
+        with pytest.raises(ValueError) as err:
+            StylizeConfig(**changes).validate()
+        assert words in str(err.value) and "\n" not in str(err.value)
+    StylizeConfig(k=np.int64(4), tau=np.float32(0.5), lr=None).validate()  # numpy's numbers are numbers
+
+    from app.cli import main
+
+    assert main(["stylize", "m.ply", "--data", "d", "--style", "s.png", "-o", "out", "--tau", "inf"]) == 2
+    assert capsys.readouterr().err == "splatstyler: error: --tau must be a finite number, got inf\n"

@@ -10,27 +10,16 @@ import pytest
 from training.scene.scene import Camera
 from training.stylize.view_order import (camera_distance_matrix, greedy_path, nearest_order, path_length, random_order,
                                  scene_kind, two_opt, view_order)
-from training.stylize.virtual_views import interpolate_camera, quat_to_rotation, rotation_to_quat, slerp, trajectory
+from training.scene.pose import interpolate_camera, look_at as look_at_matrix, matrix_to_quat, quat_to_matrix, slerp
+from training.stylize.virtual_views import trajectory
 
 SHARED = Path(__file__).resolve().parents[1].parent / "shared"
 
 
-def look_at(center, target, up=(0.0, 0.0, 1.0), name="cam", size=(64, 48), f=50.0) -> Camera:
-    """An OpenCV camera (x right, y down, z forward) at ``center`` looking at ``target``."""
-    center = np.asarray(center, float)
-    z = np.asarray(target, float) - center
-    z /= np.linalg.norm(z)
-    x = np.cross(z, -np.asarray(up, float))
-    if np.linalg.norm(x) < 1e-9:
-        x = np.cross(z, np.array([1.0, 0.0, 0.0]))
-    x /= np.linalg.norm(x)
-    y = np.cross(z, x)
-    R = np.stack([x, y, z])  # rows: camera axes in world coordinates
-    w2c = np.eye(4)
-    w2c[:3, :3] = R
-    w2c[:3, 3] = -R @ center
+def look_at(center, target, up=(0.0, 0.0, -1.0), name="cam", size=(64, 48), f=50.0) -> Camera:
+    """A camera at ``center`` looking at ``target``, ``up`` up in its image (the layouts here have world z down)."""
     w, h = size
-    return Camera(name, w, h, f, f, w / 2, h / 2, w2c)
+    return Camera(name, w, h, f, f, w / 2, h / 2, look_at_matrix(center, target, up))
 
 
 def circle_cameras(n: int, radius: float = 4.0, arc_deg: float = 360.0) -> list[Camera]:
@@ -143,9 +132,9 @@ def test_quaternion_round_trip_and_slerp():
     for _ in range(20):
         q = rng.normal(size=4)
         q /= np.linalg.norm(q)
-        R = quat_to_rotation(q)
+        R = quat_to_matrix(q)
         assert np.allclose(R @ R.T, np.eye(3), atol=1e-12) and np.linalg.det(R) == pytest.approx(1.0)
-        assert np.allclose(quat_to_rotation(rotation_to_quat(R)), R, atol=1e-12)
+        assert np.allclose(quat_to_matrix(matrix_to_quat(R)), R, atol=1e-12)
     # About z: 0 and 90 degrees; the midpoint is 45 degrees, the endpoints come back exactly.
     q0 = np.array([1.0, 0, 0, 0])
     q1 = np.array([np.cos(np.pi / 4), 0, 0, np.sin(np.pi / 4)])
@@ -163,10 +152,10 @@ def test_interpolated_cameras_endpoints_and_midpoint():
     a = look_at([4, 0, 0], [0, 0, 0], name="a", f=40.0)
     b = look_at([0, 4, 0], [0, 0, 0], name="b", f=60.0)
     for t, cam in ((0.0, a), (1.0, b)):
-        c = interpolate_camera(a, b, t)
+        c = interpolate_camera(a, b, t, "c")
         assert np.allclose(c.world_to_camera, cam.world_to_camera, atol=1e-12)
         assert c.fx == pytest.approx(cam.fx)
-    mid = interpolate_camera(a, b, 0.5)
+    mid = interpolate_camera(a, b, 0.5, "mid")
     assert np.allclose(mid.center, [2, 2, 0])
     assert mid.fx == pytest.approx(50.0)
     # Rotation halfway: the forward direction bisects the two, and stays orthonormal.

@@ -212,6 +212,54 @@ Path(os.environ["RESULT"]).write_text(json.dumps(found))
     assert float(np.std(frames[0])) > 2.0  # the scene, not a blank frame
 
 
+def test_path_sliders_hold_typed_values_to_their_range_and_render_video_checks_the_path(demo_scene, tmp_path):
+    """Typed into the sliders (Ctrl+click), 1e7 seconds and 100000 fps are held to the sliders' ranges; a path
+    whose frames are past the limit (a project's, a loaded one) is refused by Render video in one line, no job
+    started; a valid one starts at once, each frame's camera made as the frame is rendered (not all of them on the
+    UI thread first)."""
+    scene_dir, _, model = demo_scene
+    found = run_gui(PRELUDE + f"""
+from app.camera_path import CameraPath
+
+made = []
+real_camera_at = CameraPath.camera_at
+CameraPath.camera_at = lambda self, *a, **k: (made.append(1), real_camera_at(self, *a, **k))[1]
+app = ViewerApp(Paths(model={str(model)!r}, data={str(scene_dir)!r}, out=str(OUT / "out")))
+
+def test(ctx):
+    open_window(ctx, "Camera path")
+    ctx.item_click("Dataset trajectory")
+    ctx.item_input_value("seconds", 1e7)
+    ctx.item_input_value("fps", 100000)
+    path = app.document.camera_path
+    found["typed"] = [path.duration, path.fps]
+    ctx.item_input_value("size/$$0", 32)
+    ctx.item_input_value("size/$$1", 32)
+    ctx.item_input_value("video file", str(OUT / "frames"))
+    path.duration = 1e4  # 600,000 frames at 60 fps: past the limit
+    made.clear()
+    ctx.item_click("Render video")
+    found["refused"] = [app.ui.video.job is None, app.ui.messages.error, len(made)]
+    app.ui.messages.error = ""
+    path.duration = 60.0
+    made.clear()
+    ctx.item_click("Render video")
+    job = app.ui.video.job
+    found["started"] = [job is not None, job.total, job.done, len(made)]
+    job.cancel()
+    app.ui.video.job = None
+
+run(app, test)
+Path(os.environ["RESULT"]).write_text(json.dumps(found))
+""", tmp_path)
+    assert found["typed"] == [60.0, 60.0]
+    refused, error, made = found["refused"]
+    assert refused and made == 0, found
+    assert "600000 frames" in error and "\n" not in error, error
+    started, total, done, made = found["started"]
+    assert started and total == 3600 and made <= done + 1 < total, found
+
+
 def test_edits_sliders_masks_and_exports_never_race_the_running_trainer(demo_scene, tmp_path):
     """200 random actions from the UI thread while the stylizer steps: deletions of random spheres on the running
     model, tau and lambda sliders, the stylization's region, exports. Every change reaches the trainer between two
@@ -243,7 +291,7 @@ def test(ctx):
             if ed.selected.any():
                 ed.delete()
         elif what == "slider":
-            set_stylize(app.session, app.ui, tau=rng.uniform(0.05, 2.0), lambda_content=rng.uniform(0.0, 0.05))
+            set_stylize(app.session, app.ui, tau=rng.uniform(0.05, 2.0), lambda_content=rng.uniform(0.0, 20.0))
         elif what == "region":
             ed.select(in_sphere(ed.model.means, ed.model.means[rng.randrange(ed.count)], 1.0), "set")
             set_style_region(app.document, app.session, app.ui, rng.choice(["all", "selection", "unselected"]))

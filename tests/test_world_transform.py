@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 import torch
 
-from app.camera_path import quat_to_matrix
+from training.scene.pose import quat_to_matrix
 from app.viewer.app import ViewerApp
 from app.viewer.files import open_model, open_project, save_project
 from app.viewer.scene_models import snapshot_of

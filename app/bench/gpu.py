@@ -31,6 +31,8 @@ import sys
 import time
 from pathlib import Path
 
+from app.bench import raster, viewer
+
 ROOT = Path(__file__).resolve().parents[2]
 STEPS = ("parity", "raster", "viewer", "display", "reconstruct", "stylize")
 DEFAULT_STEPS = tuple(s for s in STEPS if s != "display")
@@ -161,10 +163,8 @@ def parity_step(tests: tuple[str, ...] = PARITY_TESTS) -> dict:
             "skipped": counts.get("skipped", 0), "skip_reasons": skips, "returncode": proc.returncode}
 
 
-def _bench_rows(module_name: str, argv: list[str]) -> list[dict]:
-    import importlib
-
-    module = importlib.import_module(module_name)
+def _bench_rows(module, argv: list[str]) -> list[dict]:
+    """The rows of the benchmark ``module`` (app/bench) run with the flags ``argv``."""
     parser = argparse.ArgumentParser()
     module.add_arguments(parser)
     return module.run(parser.parse_args(argv))
@@ -173,7 +173,7 @@ def _bench_rows(module_name: str, argv: list[str]) -> list[dict]:
 def raster_step(ns: list[int], size: str, repeat: int, backend: str = "cuda") -> dict:
     rows = []
     for n in ns:
-        rows += _bench_rows("app.bench.raster", ["--backends", backend, "--n", str(n), "--size", size,
+        rows += _bench_rows(raster, ["--backends", backend, "--n", str(n), "--size", size,
                                                  "--repeat", str(repeat)])
     return {"command": f"splatstyler bench raster --backends {backend} --size {size} --n N", "rows": rows}
 
@@ -181,39 +181,43 @@ def raster_step(ns: list[int], size: str, repeat: int, backend: str = "cuda") ->
 def viewer_step(ns: list[int], size: str, repeat: int) -> dict:
     argv = ["--n", ",".join(map(str, ns)), "--size", size, "--repeat", str(repeat), "--no-cpu",
             "--gpu-sort-max", str(max(ns))]
-    return {"command": "splatstyler bench viewer " + " ".join(argv), "rows": _bench_rows("app.bench.viewer", argv)}
+    return {"command": "splatstyler bench viewer " + " ".join(argv), "rows": _bench_rows(viewer, argv)}
 
 
 def display_step(ns: list[int], size: str, repeat: int) -> dict:
     argv = ["--cuda-only", "--n", ",".join(map(str, ns)), "--size", size, "--repeat", str(repeat)]
-    return {"command": "splatstyler bench viewer " + " ".join(argv), "rows": _bench_rows("app.bench.viewer", argv)}
+    return {"command": "splatstyler bench viewer " + " ".join(argv), "rows": _bench_rows(viewer, argv)}
 
 
-def _cli_with_peak_memory(argv: list[str], on_gpu: bool) -> tuple[int, float | None]:
-    """Run ``splatstyler ARGV`` in this process; its exit status and torch's peak CUDA memory in GiB (None for a run
+def _with_peak_memory(job, on_gpu: bool) -> tuple[dict, float | None]:
+    """``job()`` (a pipeline's run, in this process), and torch's peak CUDA memory during it in GiB (None for a run
     on the CPU: 0 GiB would read as a measurement)."""
     import torch
-
-    from app.cli import main as cli
 
     on_gpu = on_gpu and torch.cuda.is_available()
     if on_gpu:
         torch.cuda.empty_cache()
         torch.cuda.reset_peak_memory_stats()
-    rc = cli(argv)
-    return rc, torch.cuda.max_memory_allocated() / 2**30 if on_gpu else None
+    result = job()
+    return result, torch.cuda.max_memory_allocated() / 2**30 if on_gpu else None
+
+
+def _say(line: str) -> None:
+    print(line, file=sys.stderr, flush=True)
 
 
 def reconstruct_step(data: Path, out: Path, generated: bool, backend: str = "cuda", preset: str = "paper",
                      extra: list[str] | None = None) -> dict:
-    argv = ["reconstruct", str(data), "-o", str(out), "--preset", preset, "--backend", backend] + (
-        ["--downscale", "1"] if generated else []) + list(extra or [])
-    rc, peak = _cli_with_peak_memory(argv, backend == "cuda")
-    if rc != 0:
-        raise RuntimeError(f"splatstyler {' '.join(argv)} exited with status {rc}")
-    report = json.loads((out / "report.json").read_text())
+    """`splatstyler reconstruct DATA -o OUT --preset PRESET --backend BACKEND EXTRA`, run as the library's job."""
+    from app.settings import parse_flags
+    from app.settings import reconstruct as settings
+    from training.reconstruct.pipeline import reconstruct_to_folder
+
+    flags = ["--preset", preset, "--backend", backend] + (["--downscale", "1"] if generated else []) + list(extra or [])
+    config = settings.config_from_args(parse_flags(settings.add_arguments, flags, "reconstruct flags"))
+    report, peak = _with_peak_memory(lambda: reconstruct_to_folder(data, out, config, log=_say), backend == "cuda")
     seconds = float(report["seconds"])
-    return {"command": "splatstyler " + " ".join(argv), "minutes": seconds / 60.0,
+    return {"command": f"splatstyler reconstruct {data} -o {out} " + " ".join(flags), "minutes": seconds / 60.0,
             "iterations": report["iterations"], "it_per_s": report["iterations"] / seconds if seconds else None,
             "peak_gpu_gib": peak, "test_psnr": report.get("test_psnr"), "num_gaussians": report["num_gaussians"],
             "image_size": report["settings"]["image_size"]}
@@ -221,14 +225,19 @@ def reconstruct_step(data: Path, out: Path, generated: bool, backend: str = "cud
 
 def stylize_step(model: Path, data: Path, style: Path, out: Path, backend: str = "cuda", device: str = "cuda",
                  preset: str = "paper", extra: list[str] | None = None) -> dict:
-    argv = ["stylize", str(model), "--data", str(data), "--style", str(style), "-o", str(out), "--preset", preset,
-            "--backend", backend, "--device", device] + list(extra or [])
-    rc, peak = _cli_with_peak_memory(argv, device == "cuda")
-    if rc != 0:
-        raise RuntimeError(f"splatstyler {' '.join(argv)} exited with status {rc}")
-    report = json.loads((out / "report.json").read_text())
+    """`splatstyler stylize MODEL --data DATA --style STYLE -o OUT --preset PRESET ... EXTRA`, run as the library's
+    job."""
+    from app.settings import parse_flags
+    from app.settings import stylize as settings
+    from training.stylize.pipeline import stylize_to_folder
+
+    flags = ["--preset", preset, "--backend", backend, "--device", device] + list(extra or [])
+    options = settings.stylize_options(parse_flags(settings.add_arguments, flags, "stylize flags"), model)
+    report, peak = _with_peak_memory(lambda: stylize_to_folder(model, data, style, out, log=_say, **options),
+                                     device == "cuda")
     loop = float(report["time_s"]["stylize_loop"])
-    return {"command": "splatstyler " + " ".join(argv), "minutes": loop / 60.0,
+    return {"command": f"splatstyler stylize {model} --data {data} --style {style} -o {out} " + " ".join(flags),
+            "minutes": loop / 60.0,
             "minutes_total": float(report["time_s"]["total"]) / 60.0, "iterations": report["iterations"],
             "it_per_s": report.get("iterations_per_second"), "peak_gpu_gib": peak,
             "num_gaussians": report["num_gaussians"], "render_size": report["render_size"],

@@ -37,7 +37,8 @@ def run(args) -> list[dict]:
 
     import torch
 
-    from training.reconstruct.trainer import ReconstructConfig, Reconstructor
+    from training.reconstruct.config import ReconstructConfig
+    from training.reconstruct.trainer import Reconstructor
 
     if args.threads:
         torch.set_num_threads(args.threads)

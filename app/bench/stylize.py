@@ -4,8 +4,8 @@ The scene is the procedural demo scene (rendered here at the requested size, a f
 its surface points, and the procedural demo painting unless ``--style`` names one. Each row is one loss/backend:
 iterations per second over the timed iterations (after warm-up ones that include compilation and caches), and the
 median milliseconds of rasterize (forward), VGG forward (render, plus content/style features when a view starts),
-similarity/top-K, Sinkhorn and guide (CCFT's own breakdown, inside "loss"), backward (VGG and rasterizer) and the
-optimiser step.
+similarity/top-K, Sinkhorn and guide (CCFT's own breakdown, inside "loss"), the VGG backward (the objective's
+gradient on the render, its terms apart for the gradient balance), the rasterizer's backward and the optimiser step.
 
 Stylization trains colours only: the cpu rasterizer's backward then skips every geometric term, and it reuses the
 frozen geometry's projection and compositing weights while a view lasts (docs/rasterizer.md). Each row also runs
@@ -78,7 +78,8 @@ def run(args: argparse.Namespace) -> list[dict]:
     return rows
 
 
-STAGES = ("rasterize", "vgg_forward", "loss", "similarity_topk", "sinkhorn", "guide", "backward", "optimizer")
+STAGES = ("rasterize", "vgg_forward", "loss", "similarity_topk", "sinkhorn", "guide", "vgg_backward",
+          "raster_backward", "optimizer")
 
 
 def _train_geometry(stylizer) -> list:

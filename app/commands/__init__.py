@@ -1,14 +1,19 @@
-"""The subcommands, one module each (registered by app/cli.py), and the flags every long command shares.
+"""The subcommands, one module each (registered by app/cli.py), the flags every long command shares, and the
+pipeline's long jobs as the console shows them.
 
 A long command (minutes to hours of work) calls ``add_run_flags(parser, ...)`` so that ``--no-progress``,
 ``--debug`` and, where a stopped run can be continued, ``--resume`` are spelled, placed and explained the same way
-everywhere, and its ``--help`` lists which of them it takes.
+everywhere, and its ``--help`` lists which of them it takes. ``reconstruct_in_console`` and ``stylize_in_console``
+run the library's jobs (training/*/pipeline.py) with a progress bar, the time estimates and one-line messages, for
+their commands and for the headless demo alike.
 """
 
 from __future__ import annotations
 
 import argparse
+import sys
 import textwrap
+from pathlib import Path
 
 # The commands that take add_run_flags's flags (tests/test_cli_conventions.py checks each one).
 LONG_COMMANDS = ("reconstruct", "stylize", "sfm", "video", "eval", "demo")
@@ -32,3 +37,68 @@ def add_run_flags(parser: argparse.ArgumentParser, *, progress: str = "no progre
     if resume:
         group.add_argument("--resume", action="store_true", help=resume)
     return group
+
+
+def warning(line: str) -> None:
+    """A warning as the CLI says it: one line on stderr."""
+    print(f"splatstyler: warning: {line}", file=sys.stderr)
+
+
+def reconstruct_in_console(data, out, config, *, no_progress: bool = False, **options) -> dict:
+    """``reconstruct_to_folder`` (training/reconstruct/pipeline.py; ``options`` are its keywords) with a progress
+    bar, the run's lines and time estimates above it, warnings in one line, and the summary line at the end."""
+    import warnings
+
+    from app.progress import ProgressBar, say_above_bars
+    from training.reconstruct.pipeline import reconstruct_to_folder, summary_line
+
+    warnings.formatwarning = lambda message, category, filename, lineno, line=None: (
+        f"splatstyler: warning: {message}\n")  # the trainer's warnings, as the CLI's other messages
+    bar = ProgressBar(desc="reconstruct", disable=no_progress,
+                      postfix={"loss": "loss", "psnr": "psnr", "num_gaussians": "n"})
+    try:
+        report = reconstruct_to_folder(data, out, config, listener=bar, log=say_above_bars, warn=warning, **options)
+    finally:
+        bar.close()
+    print(summary_line(report, Path(out)), file=sys.stderr)
+    return report
+
+
+def stylize_in_console(model, data, style, out, *, no_progress: bool = False, **options) -> dict:
+    """``stylize_to_folder`` (training/stylize/pipeline.py; ``options`` are its keywords) with a progress bar and
+    the time estimates, and the lines that sum the result up at the end."""
+    import time
+
+    from app.progress import ProgressBar, say_above_bars
+    from training.core.run_estimate import RunEstimate, UniformSteps
+    from training.stylize.pipeline import stylize_to_folder
+
+    t0 = time.perf_counter()
+    # content/style: the norm of the content term's gradient on the render over the style term's (the balance)
+    bar = ProgressBar(desc="stylizing", postfix={"loss": "loss", "style_loss": "style",
+                                                  "content_to_style": "content/style", "trajectory_position": "view"},
+                      disable=no_progress)
+    # the steps cost the same throughout (fixed Gaussians and render size): timed, and timed again as the run goes
+    estimate = RunEstimate(UniformSteps(), say=say_above_bars, what="stylization")
+
+    def listener(event) -> None:
+        bar(event)
+        estimate(event)
+
+    try:
+        report = stylize_to_folder(Path(model), Path(data), Path(style), Path(out), listener=listener,
+                                   log=lambda line: print(line, flush=True), warn=warning,
+                                   report_extra=lambda: {"time_estimate": estimate.record()}, **options)
+    finally:
+        bar.close()
+    print(f"stylized {report['num_views']} views in {report['iterations']} iterations "
+          f"({time.perf_counter() - t0:.1f} s); wrote {out}")
+    if report.get("metrics"):
+        from training.evaluate.measure import summary_line
+
+        print(summary_line(report["metrics"]))
+    util = report.get("utilisation") or {}
+    if "utilisation" in util:
+        print(f"painting features used by the last plan: {util['utilisation']:.1%} (column entropy "
+              f"{util.get('column_entropy_normalised', float('nan')):.2f} of its maximum)")
+    return report

@@ -147,8 +147,11 @@ def run(args: argparse.Namespace) -> int:
         print(f"would write {line}")
         return 0
     print(f"writing {line}", flush=True)
-    result = write_export(args.output, g, fmt, bands, mask, pad_sh=not args.compact_sh, spz_version=args.spz_version,
-                          spz_axes=args.axes)
+    try:
+        result = write_export(args.output, g, fmt, bands, mask, pad_sh=not args.compact_sh,
+                              spz_version=args.spz_version, spz_axes=args.axes)
+    except ValueError as exc:  # what the model holds and the format cannot (SPZ's 24-bit reach): the input's
+        raise InputError(source, f"{exc}; {args.output} was not written") from None
     print(f"wrote {args.output} ({count} Gaussians, "
           + ("SH degree 0 colour only" if fmt == "splat" else f"SH degree {bands}")
           + (f", {human_size(result.size)}, {result.size / count:.1f} bytes per Gaussian)" if size is None else ")"))

@@ -65,13 +65,7 @@ def _dataset_camera(scene, which: str, data: Path):
 
 
 def _resized(v, size):
-    from renderer_gl import view
-
-    if size is None:
-        return v
-    sx, sy = size[0] / v.width, size[1] / v.height
-    K = [[v.fx * sx, 0, v.cx * sx], [0, v.fy * sy, v.cy * sy], [0, 0, 1]]
-    return view(world_to_camera=v.world_to_camera, K=K, width=size[0], height=size[1])
+    return v if size is None else v.resized(*size)
 
 
 def orbit_views(means, opacities, count: int, size, elevation: float, scene=None):
@@ -79,7 +73,8 @@ def orbit_views(means, opacities, count: int, size, elevation: float, scene=None
     direction too), else from the opaque Gaussians' spread."""
     import numpy as np
 
-    from renderer_gl import orbit, view
+    from renderer_gl import view
+    from training.scene.pose import orbit
 
     if scene is not None:
         centres = np.stack([c.center for c in scene.cameras])

@@ -1,8 +1,9 @@
 """What a worker does with one job of the grid: structure from motion, a reconstruction, or a cell.
 
 ``run_job(job, out, threads)`` runs in a worker process (the local pool) or a Ray task, and returns a plain dict (the
-result travels back to the driver, which records it). Each job runs the same code as the CLI subcommands, in
-process, with its console output captured in OUT/logs/<job id>.log. A job whose outputs are already complete
+result travels back to the driver, which records it). Each job runs the library function of the CLI subcommand its
+flags are for (the flags read back by app/settings), in process, with its console output captured in
+OUT/logs/<job id>.log. A job whose outputs are already complete
 and were made from the same inputs (the fingerprint in them: training/scene/fingerprint.py) returns at once (a
 resumed grid); outputs made from other inputs are made again; an interrupted reconstruction continues from its
 checkpoint when that was made from the same data.
@@ -19,7 +20,9 @@ from pathlib import Path
 from typing import Any
 
 from app.evaluate.grid import Job, job_dir
+from app.settings import parse_flags
 from training.core.atomic_write import atomic_open
+from training.core.errors import InputError
 from training.evaluate.colour_shift import colour_shift
 from training.evaluate.measure import METRICS_VERSION
 from training.model.model_io import read_model
@@ -55,22 +58,13 @@ def _captured(log_path: Path):
             os.close(saved[1])
 
 
-def _last_error(log_path: Path) -> str:
-    try:
-        lines = [ln.strip() for ln in log_path.read_text(errors="replace").splitlines() if ln.strip()]
-    except OSError:
-        return "failed (no log)"
-    errors = [ln for ln in lines if ln.startswith("splatstyler: error:")]
-    return (errors[-1] if errors else lines[-1] if lines else "failed")[:400]
+def _command(argv: list[str]) -> None:
+    """The command line a job's run is (logged: a user can run it alone)."""
+    print(f"$ splatstyler {' '.join(map(str, argv))}", flush=True)
 
 
-def _cli(argv: list[str], log_path: Path) -> None:
-    from app.cli import main
-
-    print(f"$ splatstyler {' '.join(argv)}", flush=True)
-    rc = main(argv)
-    if rc:
-        raise RuntimeError(_last_error(log_path))
+def _say(line: str) -> None:
+    print(line, flush=True)
 
 
 def run_job(job: Job | dict, out: str | Path, threads: int = 1) -> dict[str, Any]:
@@ -83,7 +77,16 @@ def run_job(job: Job | dict, out: str | Path, threads: int = 1) -> dict[str, Any
     t0 = time.perf_counter()
     try:
         with _captured(log_path):
-            result = {"sfm": _sfm, "reconstruct": _reconstruct, "cell": _cell}[job.kind](job, out, log_path)
+            try:
+                result = {"sfm": _sfm, "reconstruct": _reconstruct, "cell": _cell}[job.kind](job, out)
+            except InputError as exc:  # said in one line, as the command says it
+                print(f"splatstyler: error: {exc}", flush=True)
+                raise RuntimeError(f"splatstyler: error: {exc}") from None
+            except Exception:
+                import traceback
+
+                traceback.print_exc()  # into the job's log
+                raise
     except Exception as exc:  # one cell's failure is recorded; the grid goes on
         message = str(exc) if isinstance(exc, RuntimeError) else f"{type(exc).__name__}: {exc}"
         return {"status": "failed", "error": message.splitlines()[0][:400] if message else type(exc).__name__,
@@ -107,38 +110,34 @@ def _limit_threads(threads: int) -> None:
         pass
 
 
-def fingerprint_of(args) -> dict:
-    """The SfM fingerprint a `splatstyler sfm` command line (parsed) records."""
-    from training.scene.sfm import sfm_fingerprint
-
-    return sfm_fingerprint(args.photos, args.max_size, args.max_features, args.matcher, args.camera_model,
-                           args.refine_principal_point)
-
-
-def _sfm(job: Job, out: Path, log_path: Path) -> dict[str, Any]:
+def _sfm(job: Job, out: Path) -> dict[str, Any]:
     import shutil
 
-    from app.cli import build_parser
+    from app.settings import sfm as settings
     from training.scene.fingerprint import difference
-    from training.scene.sfm import REPORT_NAME, sfm_complete
+    from training.scene.sfm import REPORT_NAME, run_sfm, sfm_complete, sfm_fingerprint, summary_line
 
     folder = job_dir(out, job)
     report = folder / REPORT_NAME
-    argv = ["sfm", job.spec["photos"], "-o", str(folder), *job.spec["flags"]]
+    photos = job.spec["photos"]
+    options = settings.sfm_options(parse_flags(settings.add_arguments, job.spec["flags"], "sfm flags"))
     if sfm_complete(folder):
         recorded = json.loads(report.read_text()).get("fingerprint")
         if not recorded:  # from before fingerprints: kept, as an old checkpoint resumes, with one line
             print(f"the scene in {folder} records no fingerprint of its photos (made by an older version), so they "
                   f"could not be checked; using it as it is", flush=True)
             return {"sfm": _plain_values(json.loads(report.read_text()))}
-        changed = difference(recorded, fingerprint_of(build_parser().parse_args(argv)))
+        changed = difference(recorded, sfm_fingerprint(photos, options["max_size"], options["max_features"],
+                                                       options["matcher"], options["camera_model"],
+                                                       options["refine_principal_point"]))
         if changed is None:
             return {"sfm": _plain_values(json.loads(report.read_text()))}
         print(f"the scene in {folder} was made from other photos or settings ({changed}): running SfM again",
               flush=True)
     if folder.exists():
         shutil.rmtree(folder)  # the grid's own folder: an older scene, or what a failed run left
-    _cli(argv, log_path)
+    _command(["sfm", photos, "-o", folder, *job.spec["flags"]])
+    print(summary_line(run_sfm(photos, folder, log=_say, progress=False, **options).report), flush=True)
     return {"sfm": _plain_values(json.loads(report.read_text()))}
 
 
@@ -146,7 +145,9 @@ def _plain_values(summary: dict) -> dict:
     return {k: v for k, v in summary.items() if isinstance(v, (int, float, str))}
 
 
-def _reconstruct(job: Job, out: Path, log_path: Path) -> dict[str, Any]:
+def _reconstruct(job: Job, out: Path) -> dict[str, Any]:
+    from app.settings import reconstruct as settings
+    from training.reconstruct.pipeline import reconstruct_to_folder
     from training.scene.fingerprint import dataset_fingerprint, difference
 
     folder = job_dir(out, job)
@@ -166,12 +167,13 @@ def _reconstruct(job: Job, out: Path, log_path: Path) -> dict[str, Any]:
             (folder / "checkpoint.pt").unlink(missing_ok=True)
             done = False
     if not done:
-        argv = ["reconstruct", str(data), "-o", str(folder), *job.spec["flags"],
-                "--checkpoint-every", str(RECON_CHECKPOINT_EVERY), "--no-progress"]
-        if (folder / "checkpoint.pt").is_file():
-            # a killed grid continues where the reconstruction stopped, if it was of this data
-            argv += ["--resume", "--force"]
-        _cli(argv, log_path)
+        config = settings.config_from_args(parse_flags(settings.add_arguments, job.spec["flags"], "reconstruct flags"))
+        # a killed grid continues where the reconstruction stopped, if it was of this data
+        resume = (folder / "checkpoint.pt").is_file()
+        _command(["reconstruct", data, "-o", folder, *job.spec["flags"], "--checkpoint-every", RECON_CHECKPOINT_EVERY]
+                 + (["--resume", "--force"] if resume else []))
+        reconstruct_to_folder(data, folder, config, resume=resume, force=True,
+                              checkpoint_every=RECON_CHECKPOINT_EVERY, log=_say)
     r = json.loads(report.read_text())
     keys = ("test_psnr", "test_ssim", "test_lpips", "num_gaussians", "aniso_p95", "smax_p95", "seconds")
     return {"reconstruction": {k: r.get(k) for k in keys}, "model": str(folder / "point_cloud.ply")}
@@ -186,7 +188,7 @@ def _cell_made_from(spec: dict[str, Any], recon: Path, data: Path) -> dict[str, 
             "painting": file_sha256(spec["painting_path"])}
 
 
-def _cell(job: Job, out: Path, log_path: Path) -> dict[str, Any]:
+def _cell(job: Job, out: Path) -> dict[str, Any]:
     folder = job_dir(out, job)
     report_path = folder / "report.json"
     recon = job_dir(out, job.spec["recon_job"])
@@ -208,8 +210,14 @@ def _cell(job: Job, out: Path, log_path: Path) -> dict[str, Any]:
             run_baseline_cell(recon / "point_cloud.ply", data_path(out, spec), Path(spec["painting_path"]), folder,
                               spec["flags"])
         else:
-            _cli(["stylize", str(recon / "point_cloud.ply"), "--data", str(data_path(out, spec)),
-                  "--style", spec["painting_path"], "-o", str(folder), *spec["flags"]], log_path)
+            from app.settings import stylize as settings
+            from training.stylize.pipeline import stylize_to_folder
+
+            model, data = recon / "point_cloud.ply", data_path(out, spec)
+            options = settings.stylize_options(parse_flags(settings.add_arguments, spec["flags"], "stylize flags"),
+                                               model)
+            _command(["stylize", model, "--data", data, "--style", spec["painting_path"], "-o", folder, *spec["flags"]])
+            stylize_to_folder(model, data, Path(spec["painting_path"]), folder, log=_say, **options)
         with atomic_open(spec_path, "w") as f:
             json.dump({"spec": spec, "inputs": made}, f, indent=2)
     report = json.loads(report_path.read_text())

@@ -9,17 +9,16 @@ from pathlib import Path
 def prepared_stylizer(model: Path, data: Path, painting: Path, flags: list[str]):
     """(Stylizer, parsed stylize args): the stylizer a `splatstyler stylize MODEL --data DATA --style PAINTING
     FLAGS` run starts from (cameras at the stylization size, trajectory order, pre colour transfer), not stepped."""
-    from app.cli import build_parser
-    from app.stylize_settings import config_from_args
+    from app.settings import parse_flags
+    from app.settings import stylize as settings
     from training.model.model_io import read_model
     from training.scene.loader import load_scene
     from training.stylize.pipeline import choose_downscale
     from training.stylize.style_image import load_style_image
     from training.stylize.trainer import Stylizer
 
-    args = build_parser().parse_args(["stylize", str(model), "--data", str(data), "--style", str(painting),
-                                      "-o", "unused", *flags])
-    config = config_from_args(args)
+    args = parse_flags(settings.add_arguments, flags, "stylize flags")
+    config = settings.config_from_args(args)
     scene = load_scene(data, downscale=choose_downscale(data, config.render_max_side))
     stylizer = Stylizer(read_model(model), scene, load_style_image(painting), config, vgg_weights=args.vgg_weights,
                         model_name=model)

@@ -33,11 +33,11 @@ class CellViews:
     device: Any
 
 
-def cell_views(data: Path, painting: Path, flags: Sequence[str]) -> CellViews:
+def cell_views(data: Path, flags: Sequence[str]) -> CellViews:
     """The cameras and short-range pairs of a cell run as `splatstyler stylize MODEL --data DATA --style PAINTING
-    FLAGS` (the same preparation as the Stylizer's, without loading its network)."""
-    from app.cli import build_parser
-    from app.stylize_settings import config_from_args
+    FLAGS` (the same preparation as the Stylizer's, without loading its network or the painting)."""
+    from app.settings import parse_flags
+    from app.settings import stylize as settings
     from training.evaluate.consistency import pairs_at_gap
     from training.evaluate.measure import SHORT_GAP
     from training.raster.rasterize import resolve_device
@@ -46,9 +46,8 @@ def cell_views(data: Path, painting: Path, flags: Sequence[str]) -> CellViews:
     from training.stylize.pipeline import choose_downscale
     from training.stylize.view_order import nearest_order
 
-    args = build_parser().parse_args(["stylize", "unused.ply", "--data", str(data), "--style", str(painting),
-                                      "-o", "unused", *flags])
-    config = config_from_args(args)
+    args = parse_flags(settings.add_arguments, flags, "stylize flags")
+    config = settings.config_from_args(args)
     scene = load_scene(data, downscale=choose_downscale(data, config.render_max_side), load_images=False)
     cameras = [render_camera(c, config.render_max_side) for c in scene.cameras]
     order = nearest_order(scene.cameras, scene.extent)  # measure_order's: the same pairs for every view order
@@ -123,8 +122,8 @@ def worst_pair_sheet(cells: Sequence[tuple[str, Path, Path, Path, Sequence[str]]
     if len(cells) < 2:
         return None
     rows = []
-    for label, model, data, painting, flags in cells:
-        views = cell_views(data, painting, flags)
+    for label, model, data, _painting, flags in cells:
+        views = cell_views(data, flags)
         renders = render_pair_views(model, views)
         rows.append((label, views, renders, pair_rmses(renders, views.cameras, views.pairs)))
     names = [[(v.cameras[t].name, v.cameras[s].name) for t, s in v.pairs] for _, v, _, _ in rows]

@@ -13,6 +13,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from training.scene.pose import look_at
 from training.scene.scene import Camera
 
 
@@ -70,16 +71,9 @@ class ViewerCamera:
 
     @classmethod
     def looking_at(cls, position, target, up=(0.0, 0.0, 1.0), fov_y_degrees: float = 50.0) -> "ViewerCamera":
-        position, target, up = (np.asarray(v, dtype=np.float64) for v in (position, target, up))
-        forward = target - position
-        dist = float(np.linalg.norm(forward))
-        forward /= max(dist, 1e-12)
-        right = np.cross(forward, up)
-        if np.linalg.norm(right) < 1e-9:  # looking straight along up: any right will do
-            right = np.cross(forward, np.array([1.0, 0.0, 0.0]))
-        right /= np.linalg.norm(right)
-        down = np.cross(forward, right)
-        return cls(np.stack([right, down, forward], axis=1), position, dist, fov_y_degrees, up)
+        position, target = np.asarray(position, dtype=np.float64), np.asarray(target, dtype=np.float64)
+        rotation = look_at(position, target, up)[:3, :3].T
+        return cls(rotation, position, float(np.linalg.norm(target - position)), fov_y_degrees, up)
 
     # ------------------------------------------------------------------ axes
     @property

@@ -13,9 +13,9 @@ from dataclasses import replace
 from imgui_bundle import imgui
 
 from app.viewer import colour_view as cv
+from app.viewer.text_colours import GREY
 from training.model.colour_edit import RANGES
 
-GREY = imgui.ImVec4(0.6, 0.6, 0.6, 1.0)
 REGION_LABELS = {"selection": "the selection", "all": "every Gaussian"}
 PARAMETERS = (("brightness", "%.3f"), ("contrast", "%.3f"), ("saturation", "%.3f"), ("hue", "%.1f deg"),
               ("temperature", "%.3f"))

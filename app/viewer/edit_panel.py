@@ -16,8 +16,7 @@ from app.viewer import selection as sel
 from app.viewer.gizmo import box_value, record_box_change
 from app.viewer.runs import edit_live
 from app.viewer.state import TOOLS
-
-GREY = imgui.ImVec4(0.6, 0.6, 0.6, 1.0)
+from app.viewer.text_colours import GREY
 
 
 def selection_section(doc, session, ui) -> None:

@@ -11,9 +11,8 @@ from imgui_bundle import imgui
 
 from app.viewer.colour_view import export_baker
 from app.viewer.runs import submit_to_trainer
+from app.viewer.text_colours import GREY
 from training.model.export import FORMATS, SUFFIXES as SUFFIX
-
-GREY = imgui.ImVec4(0.6, 0.6, 0.6, 1.0)
 
 
 def trainer_model(trainer):

@@ -8,8 +8,7 @@ from imgui_bundle import imgui
 
 from app.viewer.files import add_to_scene, open_from_dialog
 from app.viewer.gizmo import KEYS
-
-GREY = imgui.ImVec4(0.6, 0.6, 0.6, 1.0)
+from app.viewer.text_colours import GREY
 
 
 def gizmo_section(doc, session, ui) -> None:

@@ -25,6 +25,7 @@ from app.viewer.photos import choose_photos_folder
 from app.viewer.photos_panel import photos_dialog
 from app.viewer.scene_panel import scene_panel
 from app.viewer.style_panel import style_panel
+from app.viewer.text_colours import RED
 from app.viewer.training_panel import messages_panel, training_panel
 from app.viewer.view_order_panel import view_order_panel
 from app.viewer.view_panel import VIEW_WINDOW, view_window
@@ -138,7 +139,7 @@ def status_bar(session, ui) -> None:
         imgui.progress_bar(status.step / status.total, imgui.ImVec2(160, 0))
     if ui.messages.error:
         imgui.same_line()
-        imgui.text_colored(imgui.ImVec4(1.0, 0.4, 0.35, 1.0), ui.messages.error)
+        imgui.text_colored(RED, ui.messages.error)
 
 
 def menus(doc, session, ui) -> None:

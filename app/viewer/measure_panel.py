@@ -9,8 +9,8 @@ import numpy as np
 from imgui_bundle import imgui
 
 from app.viewer import world_edit as we
+from app.viewer.text_colours import GREY
 
-GREY = imgui.ImVec4(0.6, 0.6, 0.6, 1.0)
 HINTS = {"measure": "click two points on the model", "floor": "click three points on the floor",
          "fit": "click a point on the floor"}
 

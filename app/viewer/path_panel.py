@@ -11,8 +11,6 @@ from imgui_bundle import imgui
 from app.camera_path import CameraPath, dataset_path, keyframe_from, orbit_around
 from app.viewer.path_video import start_video
 
-GREY = imgui.ImVec4(0.6, 0.6, 0.6, 1.0)
-
 
 def path_panel(doc, session, ui) -> None:
     st, path = ui.video, doc.camera_path
@@ -56,11 +54,13 @@ def path_panel(doc, session, ui) -> None:
             imgui.pop_id()
             break
         imgui.pop_id()
-    changed, seconds = imgui.slider_float("seconds", float(path.duration), 1.0, 60.0)
+    # a value typed into a slider (Ctrl+click) is held to its range, as dragging is
+    clamp = imgui.SliderFlags_.always_clamp
+    changed, seconds = imgui.slider_float("seconds", float(path.duration), 1.0, 60.0, "%.3f", clamp)
     if changed:
         path.duration = seconds
         ui.requests.overlays = True
-    changed, fps = imgui.slider_int("fps", int(round(path.fps)), 10, 60)
+    changed, fps = imgui.slider_int("fps", int(round(path.fps)), 10, 60, "%d", clamp)
     if changed:
         path.fps = float(fps)
     changed, path.loop = imgui.checkbox("loop", path.loop)

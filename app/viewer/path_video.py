@@ -17,14 +17,16 @@ class VideoJob:
         from app.video_output import frame_writer, render_frames
 
         self.view, self.messages = view, messages
-        self.cameras = path.cameras(width, height)
-        self.total = len(self.cameras)
+        path = path.copy()  # the frames follow the path as it was when Render was pressed
+        self.total = path.frame_count
         self.done = 0
         self.out = out
         self.started = time.perf_counter()
         self._stack = contextlib.ExitStack()
         self._write = self._stack.enter_context(frame_writer(out, width, height, path.fps))
-        self._frames = render_frames(view.renderer, self.cameras, width, height,
+        # each frame's camera is made as the frame is rendered: up to MAX_FRAMES of them up front would hold the
+        # UI thread
+        self._frames = render_frames(view.renderer, path.iter_cameras(width, height), width, height,
                                      split=0.5 if split else None, split_left=1,
                                      background=view.settings.background,
                                      max_sh_degree=view.settings.max_sh_degree)
@@ -57,6 +59,7 @@ class VideoJob:
 
 def start_video(doc, ui) -> None:
     st = ui.video
+    doc.camera_path.validate()  # keyframes, and a duration and fps within the limits (the frames are counted)
     w, h = (int(v) for v in st.size)
     if w < 16 or h < 16 or w % 2 or h % 2:
         raise ValueError(f"video size must be even and at least 16x16, got {w}x{h}")

@@ -78,7 +78,7 @@ def start_photos(doc, session, ui) -> None:
     and downscale): a new scene, the three stages in the live session."""
     from app.stage_outputs import StageOutputs
     from app.viewer.runs import next_run_dir
-    from app.viewer.sfm_run import SfmSettings
+    from app.settings import sfm as sfm_settings
     from app.viewer.stages import reconstruct_stage, sfm_stage, stylize_stage
     from training.scene.sfm import CAMERA_MODELS, list_photos
 
@@ -109,8 +109,8 @@ def start_photos(doc, session, ui) -> None:
         folders["stylized"] = next_run_dir(out, "stylized")
     outputs = StageOutputs(folders["scene"], painting, out)
     overrides = {} if t.recon_iters is None else {"iterations": int(t.recon_iters)}
-    stages = [sfm_stage(folder, folders["scene"], SfmSettings(max_size=int(p.max_size),
-                                                                 camera_model=p.camera_model)),
+    sfm = sfm_settings.options_from_flags(["--max-size", str(int(p.max_size)), "--camera-model", p.camera_model])
+    stages = [sfm_stage(folder, folders["scene"], sfm),
               reconstruct_stage(folders["scene"], folders["reconstruction"], preset=t.preset, downscale=t.downscale,
                                 outputs=outputs.reconstruction, **overrides)]
     if painting:

@@ -8,9 +8,9 @@ from imgui_bundle import imgui
 
 from app.viewer.files import DIALOG_FILTERS, choose_file, choose_folder
 from app.viewer.photos import start_photos
+from app.viewer.text_colours import GREY
 from training.scene.sfm import CAMERA_MODELS
 
-GREY = imgui.ImVec4(0.6, 0.6, 0.6, 1.0)
 PRESETS = ("quick", "standard", "paper")
 
 

@@ -76,52 +76,32 @@ def surface_brush(means, camera, points, radius: float, depth: np.ndarray, toler
     return out
 
 
-def _rotations(quats: np.ndarray) -> np.ndarray:
-    """(N, 3, 3) from unit quaternions (w, x, y, z)."""
-    w, x, y, z = (np.asarray(quats, np.float64)[:, i] for i in range(4))
-    return np.stack([np.stack([1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)], -1),
-                     np.stack([2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)], -1),
-                     np.stack([2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)], -1)], -2)
-
-
 def weights_at(model, camera, x: float, y: float, visible: np.ndarray | None = None,
                chunk: int = 1 << 18) -> np.ndarray:
     """(N,) each Gaussian's share of pixel (x, y)'s colour, alpha times the transmittance left in front of it, as
     the renderer composites (EWA projection with its low-pass, ALPHA_MIN and ALPHA_MAX; training/raster)."""
-    from training.raster.constants import ALPHA_MAX, ALPHA_MIN, EPS2D, NEAR_PLANE
+    from training.raster.constants import ALPHA_MAX, ALPHA_MIN, EPS2D, FOV_CLAMP_MARGIN, NEAR_PLANE
+    from training.scene.pose import splat_footprints
 
-    from renderer_gl.camera import jacobian_limits
-
-    lim_right, lim_left, lim_bottom, lim_top = jacobian_limits(camera)
     n = len(model.means)
-    w2c = np.asarray(camera.world_to_camera, np.float64)
     alpha = np.zeros(n)
     z_all = np.full(n, np.inf)
     for lo in range(0, n, chunk):
         sl = slice(lo, min(lo + chunk, n))
-        pc = np.asarray(model.means[sl], np.float64) @ w2c[:3, :3].T + w2c[:3, 3]
-        z = pc[:, 2]
+        z = camera_depths(np.asarray(model.means[sl]), camera)
         ok = z > NEAR_PLANE
         if visible is not None:
             ok &= visible[sl]
         rows = np.nonzero(ok)[0]
         if len(rows) == 0:
             continue
-        p, zr = pc[rows], z[rows]
-        m = w2c[:3, :3] @ _rotations(model.quats[sl][rows]) * np.asarray(model.scales[sl][rows], np.float64)[:, None]
-        # the Jacobian at x/z, y/z clamped to 1.3x the field of view, as the renderer does: a Gaussian just in front
-        # of the camera far to the side would otherwise spread over the whole picture
-        u = np.clip(p[:, 0] / zr, -lim_left, lim_right)
-        v = np.clip(p[:, 1] / zr, -lim_top, lim_bottom)
-        j = np.zeros((len(rows), 2, 3))
-        j[:, 0, 0], j[:, 0, 2] = camera.fx / zr, -camera.fx * u / zr
-        j[:, 1, 1], j[:, 1, 2] = camera.fy / zr, -camera.fy * v / zr
-        t = j @ m
-        cov = t @ t.transpose(0, 2, 1) + EPS2D * np.eye(2)
+        zr = z[rows]
+        uv, cov = splat_footprints(camera, model.means[sl][rows], model.quats[sl][rows], model.scales[sl][rows],
+                                   EPS2D, FOV_CLAMP_MARGIN)
         a, b, c = cov[:, 0, 0], cov[:, 0, 1], cov[:, 1, 1]
         det = a * c - b * b
-        dx = x - (camera.fx * p[:, 0] / zr + camera.cx)
-        dy = y - (camera.fy * p[:, 1] / zr + camera.cy)
+        dx = x - uv[:, 0]
+        dy = y - uv[:, 1]
         power = -0.5 * (c * dx * dx - 2 * b * dx * dy + a * dy * dy) / np.maximum(det, 1e-30)
         al = np.minimum(ALPHA_MAX, np.asarray(model.opacities[sl][rows], np.float64) * np.exp(power))
         al[(al < ALPHA_MIN) | (det <= 0)] = 0.0

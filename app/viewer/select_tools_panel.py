@@ -12,8 +12,7 @@ from imgui_bundle import imgui
 
 from app.viewer import select_tools as st
 from app.viewer.gestures import shown_sh
-
-GREY = imgui.ImVec4(0.6, 0.6, 0.6, 1.0)
+from app.viewer.text_colours import GREY
 
 
 def more_selections(doc, session, ui) -> None:

@@ -96,6 +96,7 @@ class LiveSession:
         # given meanwhile wait here for the trainer being built (they are the new run's, not the old trainer's)
         self._building = False
         self._pending_config: dict[str, Any] = {}
+        self._taking_calls = False  # under _lock: submit() queues only while the thread will still answer
         self.saved: list[Path] = []
         self.notes: list[str] = []  # the lines of stopped stages (Stage.stopped), for the console after the window
         self.history: deque[dict[str, float]] = deque(maxlen=history)  # step metrics, for the curves
@@ -114,6 +115,7 @@ class LiveSession:
         with self._lock:
             self._building, self._pending_config = True, {}
             self._status.stage = stages[0].name if stages else ""
+            self._taking_calls = True
         self._set(state="loading", error="", step=0, total=0, last_metrics={}, steps_per_second=0.0,
                   seconds_left=None, detail="")
         self._thread.start()
@@ -157,10 +159,11 @@ class LiveSession:
         the latest when its stage ends and before the stage saves; once the next stage has begun it is refused
         (the Future's exception says so), never run on the next stage's trainer."""
         trainer = self._trainer
-        if not self.running or trainer is None:
-            raise ValueError("no trainer is running")
         future: Future = Future()
-        self._commands.put(("call", fn, future, trainer, self._status.stage))
+        with self._lock:  # not between the thread's last look at the queue and its end: nobody would answer
+            if not self.running or trainer is None or not self._taking_calls:
+                raise ValueError("no trainer is running")
+            self._commands.put(("call", fn, future, trainer, self._status.stage))
         return future
 
     def update_config(self, **changes: Any) -> str | None:
@@ -331,6 +334,8 @@ class LiveSession:
 
     def _trainer_gone(self) -> None:
         """The run is over: calls still queued will never run; their futures say so (nobody waits forever)."""
+        with self._lock:
+            self._taking_calls = False
         while True:
             try:
                 command = self._commands.get_nowait()

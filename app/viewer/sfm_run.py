@@ -1,4 +1,5 @@
-"""Structure from motion as the live session runs a trainer: `splatstyler sfm`'s ``run_sfm``, with its settings, in
+"""Structure from motion as the live session runs a trainer: `splatstyler sfm`'s ``run_sfm``, with its settings
+(app/settings/sfm.py), in
 one long step on the session's thread (COLMAP releases the GIL, so the window stays live), reporting as it goes.
 
 Out of it, as out of the other stages' trainers: "step" events whose step counts the current phase's units (photos
@@ -17,37 +18,26 @@ from __future__ import annotations
 
 import threading
 import time
-from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 
 from training.core.messages import EventSource, ModelSnapshot
 from training.model.sh_constants import SH_C0
-from training.scene.sfm import DEFAULT_MAX_FEATURES, DEFAULT_MAX_SIZE, SfmProgress
+from training.scene.sfm import SfmProgress
 
 # A sparse point is drawn as a Gaussian this many times the points' spread (their median distance to their median):
 # a dot of a few pixels at the distances the view starts from
 POINT_SIZE = 0.004
 
 
-@dataclass(frozen=True)
-class SfmSettings:
-    """What the SfM stage runs with: `splatstyler sfm`'s settings, with its defaults."""
-
-    max_size: int = DEFAULT_MAX_SIZE
-    max_features: int = DEFAULT_MAX_FEATURES
-    matcher: str = "auto"
-    camera_model: str = "SIMPLE_RADIAL"
-    refine_principal_point: bool = False
-
-
 class SfmRun(EventSource):
-    """``run_sfm(photos, out, settings)`` as a session's trainer (see the module docstring)."""
+    """``run_sfm(photos, out, **options)`` as a session's trainer (see the module docstring); ``options``: run_sfm's
+    settings as app/settings/sfm.py gives them."""
 
-    def __init__(self, photos: Path, out: Path, settings: SfmSettings):
+    def __init__(self, photos: Path, out: Path, options: dict):
         super().__init__("sfm")
-        self.photos, self.out, self.config = Path(photos), Path(out), settings
+        self.photos, self.out, self.config = Path(photos), Path(out), dict(options)
         self.total_iters = 1
         self.step_count = 0
         self.done = False
@@ -73,13 +63,11 @@ class SfmRun(EventSource):
         from training.core.messages import Cancelled
         from training.scene.sfm import run_sfm
 
-        c = self.config
         try:
-            self.result = run_sfm(self.photos, self.out, max_size=c.max_size, max_features=c.max_features,
-                                  matcher=c.matcher, camera_model=c.camera_model,
-                                  refine_principal_point=c.refine_principal_point, log=self._log, progress=False,
-                                  progress_to=self._progress, cancel=self._stop.is_set,
-                                  partial_hint="`splatstyler sfm --allow-partial` keeps such a model")
+            self.result = run_sfm(self.photos, self.out, log=self._log, progress=False, progress_to=self._progress,
+                                  cancel=self._stop.is_set,
+                                  partial_hint="`splatstyler sfm --allow-partial` keeps such a model",
+                                  **self.config)
         except Cancelled:
             return  # stopped: nothing was written, and the session ends the stage
         self.step_count = 1

@@ -3,6 +3,7 @@ running stylizer takes them, greyed where they shape a run from its start)."""
 
 from __future__ import annotations
 
+import math
 from dataclasses import replace
 
 import numpy as np
@@ -10,15 +11,18 @@ from imgui_bundle import imgui
 
 from app.viewer.runs import set_style_region, stylizing
 from app.viewer.state import REGIONS
+from app.viewer.text_colours import GREY
 from training.stylize import defaults as D
 from training.stylize.config import RANGES
 
-GREY = imgui.ImVec4(0.6, 0.6, 0.6, 1.0)
 # Settings the stylizer fixes when it starts; the panel greys them during a run and says why.
 RESTART = "fixed while a stylization runs: it shapes the run from its first step (stop and start again)"
 # The painting gives way to the settings below it (all in view without scrolling, 1920x1080 included) down to this
 # many text lines high.
 MIN_PAINTING_LINES = 6
+# The content weights the scene <-> painting control spans (relative unit, training/stylize/objective.py): at the
+# left end the content term's gradient is several times the style term's, at the right a hundredth of it
+BALANCE_SPAN = (0.05, 50.0)
 
 
 def set_stylize(session, ui, **changes) -> None:
@@ -55,10 +59,19 @@ def style_panel(doc, session, ui) -> None:
     changed, i = imgui.combo("loss", losses.index(cfg.loss), losses)
     if changed:
         set_stylize(session, ui, loss=losses[i])
+    balance_slider(session, ui, cfg)
+    lo, hi, _ = RANGES["style_scale"]
+    changed, scale = imgui.slider_float("stroke size", float(cfg.style_scale), lo, hi, "%.2gx",
+                                        imgui.SliderFlags_.logarithmic)
+    if changed:
+        set_stylize(session, ui, style_scale=scale)
+    imgui.set_item_tooltip("the painting's size against the render's (style scale): larger gives larger strokes and "
+                           "fewer whole motifs of the painting; 1 is the paper's, where a small render takes the "
+                           "painting's moons and trees whole")
     # (label, config field, its current value): the spans come with the config (RANGES)
     floats = [("tau", "tau", cfg.tau), ("epsilon", "epsilon", cfg.epsilon), ("lambda_guide", "lambda_guide",
-              cfg.lambda_guide), ("lambda_content", "lambda_content", cfg.lambda_content),
-              ("lambda_style", "lambda_style", cfg.style_weight), ("learning rate", "lr", cfg.learning_rate)]
+              cfg.lambda_guide), ("lambda_style", "lambda_style", cfg.style_weight),
+              ("learning rate", "lr", cfg.learning_rate)]
     for label, name, value in floats:
         lo, hi, log = RANGES[name]
         flags = imgui.SliderFlags_.logarithmic if log else 0
@@ -87,7 +100,25 @@ def style_panel(doc, session, ui) -> None:
     if "utilisation" in plan:
         imgui.text(f"last plan: utilisation {plan['utilisation']:.3f}, "
                    f"column entropy {plan.get('column_entropy', float('nan')):.3f}")
+    if plan.get("content_to_style") is not None:
+        imgui.text(f"content/style gradient: {plan['content_to_style']:.3g} "
+                   f"({'the scene leads' if plan['content_to_style'] > 1 else 'the painting leads'})")
     ui.window.style_settings_h = imgui.get_cursor_pos_y() - below_painting  # the painting leaves them room
+
+
+def balance_slider(session, ui, cfg) -> None:
+    """Scene <-> painting: the content weight on a logarithmic scale, the scene at the left end (the largest weight),
+    the painting at the right; the value shown is the weight itself."""
+    lo, hi = BALANCE_SPAN
+    weight = min(max(float(cfg.lambda_content), lo), hi)
+    toward_painting = math.log(hi / weight) / math.log(hi / lo)
+    changed, toward_painting = imgui.slider_float("scene <-> painting", toward_painting, 0.0, 1.0,
+                                                  f"content weight {cfg.lambda_content:.3g}")
+    if changed:
+        set_stylize(session, ui, lambda_content=float(hi * (lo / hi) ** toward_painting))
+    imgui.set_item_tooltip("left keeps the scene's structure (a larger content weight), right gives the painting "
+                           f"more of it; the default is {D.LAMBDA_CONTENT:g}. The Training tab plots the balance of "
+                           "the two terms' gradients as the run goes")
 
 
 def fixed_settings(session, ui, cfg, live: bool) -> None:

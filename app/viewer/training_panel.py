@@ -12,8 +12,9 @@ from app.viewer.files import open_model
 from app.viewer.runs import start_reconstruction, start_stylization, stylize_progress
 from app.viewer.sfm_run import phase_time_left
 from app.viewer.view3d import RANGES
+from app.viewer.text_colours import RED
 
-RED = imgui.ImVec4(1.0, 0.4, 0.35, 1.0)
+BALANCE_PLOT_H = 150.0
 
 
 def training_panel(doc, session, ui) -> None:
@@ -139,6 +140,8 @@ def loss_curves(session, ui) -> None:
     steps = np.array([h["step"] for h in history], dtype=np.float64)
     # the plot takes the panel's height left below it (the list of runs keeps its lines), never less than 170 px
     reserve = (len(ui.training.runs) + 2) * imgui.get_text_line_height_with_spacing() if ui.training.runs else 0.0
+    if stage == "stylize":
+        reserve += BALANCE_PLOT_H + imgui.get_style().item_spacing.y  # the gradient balance below the losses
     height = max(170.0, imgui.get_content_region_avail().y - reserve)
     if implot.begin_plot("sparse points###losses" if sfm else "losses", imgui.ImVec2(-1, height)):
         fit = implot.AxisFlags_.auto_fit.value  # the curves grow every step: keep them all in view
@@ -153,6 +156,25 @@ def loss_curves(session, ui) -> None:
             ys = np.where(ys > 0, ys, np.nan)
             if np.isfinite(ys).any():
                 implot.plot_line(key, steps, ys)
+        implot.end_plot()
+    if stage == "stylize":
+        balance_curve(steps, history)
+
+
+def balance_curve(steps: np.ndarray, history: list[dict]) -> None:
+    """The content term's gradient on the render over the style term's, step by step, with 1 (balanced) marked."""
+    ratio = np.array([h.get("content_to_style", np.nan) for h in history], dtype=np.float64)
+    ratio = np.where(ratio > 0, ratio, np.nan)
+    if not np.isfinite(ratio).any():
+        return
+    if implot.begin_plot("gradient balance", imgui.ImVec2(-1, BALANCE_PLOT_H)):
+        fit = implot.AxisFlags_.auto_fit.value
+        implot.setup_axes("step", "content / style", fit, fit)
+        implot.setup_axis_scale(implot.ImAxis_.y1, implot.Scale_.log10)
+        implot.setup_legend(implot.Location_.north.value,
+                            implot.LegendFlags_.outside.value | implot.LegendFlags_.horizontal.value)
+        implot.plot_line("content / style gradient", steps, ratio)
+        implot.plot_line("balanced", np.array([steps[0], steps[-1]]), np.ones(2))
         implot.end_plot()
 
 

@@ -8,8 +8,7 @@ import numpy as np
 from imgui_bundle import imgui
 
 from app.viewer.runs import current_view_index, stylize_progress, trajectory
-
-GREY = imgui.ImVec4(0.6, 0.6, 0.6, 1.0)
+from app.viewer.text_colours import GREY
 
 
 def view_order_panel(doc, session, ui) -> None:

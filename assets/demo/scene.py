@@ -21,6 +21,7 @@ from typing import Callable
 import numpy as np
 
 from assets.demo.noise import GradientNoise, hash_uniform, hsv_to_rgb
+from training.scene.pose import look_at
 from training.scene.scene import Camera
 
 _EPS = 1e-6
@@ -344,9 +345,8 @@ class DemoWorld:
         u = (np.arange(camera.width)[:, None] + offsets[None, :]).reshape(-1)  # (W*s,)
         v = (np.arange(camera.height)[:, None] + offsets[None, :]).reshape(-1)  # (H*s,)
         uu, vv = np.meshgrid(u, v)  # (H*s, W*s)
-        dirs_cam = np.stack([(uu - camera.cx) / camera.fx, (vv - camera.cy) / camera.fy, np.ones_like(uu)], -1)
         R = camera.world_to_camera[:3, :3]
-        dirs = dirs_cam.reshape(-1, 3) @ R  # R^T applied to each row
+        dirs = camera.rays(uu, vv).reshape(-1, 3) @ R  # R^T applied to each row
         dirs /= np.linalg.norm(dirs, axis=1, keepdims=True)
         origins = np.broadcast_to(camera.center, dirs.shape).copy()
         # Chunks keep numpy's temporaries small and cache-friendly.
@@ -357,12 +357,8 @@ class DemoWorld:
 
     def visible(self, points: np.ndarray, camera: Camera, tolerance: float = 1e-4) -> np.ndarray:
         """Whether each surface point (P, 3) is inside ``camera``'s image and not hidden by anything -> (P,) bool."""
-        pc = points @ camera.world_to_camera[:3, :3].T + camera.world_to_camera[:3, 3]
-        z = pc[:, 2]
-        with np.errstate(divide="ignore", invalid="ignore"):
-            u = camera.fx * pc[:, 0] / z + camera.cx
-            v = camera.fy * pc[:, 1] / z + camera.cy
-        inside = (z > 0.05) & (u >= 0) & (u < camera.width) & (v >= 0) & (v < camera.height)
+        (u, v), front = (a.T for a in camera.project(points, near=0.05))
+        inside = front & (u >= 0) & (u < camera.width) & (v >= 0) & (v < camera.height)
         result = np.zeros(len(points), dtype=bool)
         if np.any(inside):
             o = np.broadcast_to(camera.center, (int(inside.sum()), 3)).copy()
@@ -394,20 +390,6 @@ class DemoWorld:
         return np.concatenate(points), np.concatenate(normals), np.concatenate(ids)
 
 
-def look_at(center: np.ndarray, target: np.ndarray, up: np.ndarray = np.array([0.0, 0.0, 1.0])) -> np.ndarray:
-    """World-to-camera (4, 4) of a camera at ``center`` looking at ``target`` (OpenCV: x right, y down, z forward)."""
-    forward = target - center
-    forward = forward / np.linalg.norm(forward)
-    right = np.cross(forward, up)
-    right /= np.linalg.norm(right)
-    down = np.cross(forward, right)
-    R = np.stack([right, down, forward])
-    w2c = np.eye(4)
-    w2c[:3, :3] = R
-    w2c[:3, 3] = -R @ center
-    return w2c
-
-
 def demo_cameras(num_views: int = 32, width: int = 256, height: int = 192, arc_degrees: float = 150.0,
                  radius: float = 5.6, height_m: float = 2.0, fov_x_degrees: float = 60.0) -> list[Camera]:
     """Cameras on a horizontal arc of ``arc_degrees`` around the objects (rising gently towards the middle of
@@ -422,7 +404,8 @@ def demo_cameras(num_views: int = 32, width: int = 256, height: int = 192, arc_d
         center = np.array([radius * np.sin(a), -radius * np.cos(a), height_m + 0.5 * np.sin(np.pi * si)])
         center[:2] += LOOK_AT[:2]
         cameras.append(Camera(name=f"view_{i:03d}.png", width=width, height=height, fx=float(fx), fy=float(fx),
-                              cx=width / 2.0, cy=height / 2.0, world_to_camera=look_at(center, LOOK_AT)))
+                              cx=width / 2.0, cy=height / 2.0,
+                              world_to_camera=look_at(center, LOOK_AT, up=(0.0, 0.0, 1.0))))
     return cameras
 
 

@@ -1,7 +1,8 @@
 """Write files so that a crash or Ctrl-C never leaves a half-written output behind.
 
 Everything goes to a temporary name in the target's folder and is renamed over the target only once complete
-(rename is atomic within one filesystem).
+(rename is atomic within one filesystem); the file is flushed to the disk before the rename and the folder after it,
+so a power cut leaves the old file or the new one, never an empty one under the name.
 """
 
 from __future__ import annotations
@@ -83,6 +84,8 @@ def atomic_path(path: str | Path) -> Iterator[Path]:
     try:
         try:
             yield tmp_path
+            _fsync(tmp_path)  # its bytes on the disk before the name points at them (else a crash can leave the
+            # target renamed but empty: the rename reaches the journal before the data)
         except (OSError, RuntimeError) as exc:
             if not _disk_full(exc, path.parent):
                 raise
@@ -93,9 +96,25 @@ def atomic_path(path: str | Path) -> Iterator[Path]:
         os.umask(umask)
         os.chmod(tmp_path, 0o666 & ~umask)
         os.replace(tmp_path, path)
+        _fsync(path.parent, directory=True)  # the rename itself, which lives in the folder
     finally:
         if tmp_path.exists():
             tmp_path.unlink()
+
+
+def _fsync(path: Path, directory: bool = False) -> None:
+    if directory and os.name == "nt":  # a folder cannot be opened there; NTFS journals the rename itself
+        return
+    flags = os.O_RDWR if os.name == "nt" else os.O_RDONLY  # Windows flushes only a handle open for writing
+    fd = os.open(path, flags | (getattr(os, "O_DIRECTORY", 0) if directory else 0))
+    try:
+        os.fsync(fd)
+    except OSError as exc:
+        # some filesystems (network ones, FUSE) cannot flush a folder: the rename is made, and stays
+        if not (directory and exc.errno in (errno.EINVAL, errno.ENOTSUP, errno.EBADF)):
+            raise
+    finally:
+        os.close(fd)
 
 
 @contextlib.contextmanager
@@ -104,5 +123,3 @@ def atomic_open(path: str | Path, mode: str = "wb", **kwargs) -> Iterator[IO]:
     with atomic_path(path) as tmp:
         with open(tmp, mode, **kwargs) as f:
             yield f
-            f.flush()
-            os.fsync(f.fileno())

@@ -2,8 +2,9 @@
 
 Each image's pixels are optimised directly (Adam) against the painting with the stylizer's own losses: the style
 loss (CCFT by default, ``training.stylize.style_losses``) on VGG-16 relu3 features of the image and of the painting
-(resized so its long side matches the image's, both halved as the stylizer does) weighted by the stylizer's
-lambda_style, plus lambda_content times the MSE to the features of the image before stylization. A fresh loss, so a
+(resized to the stylizer's stroke size, its long side ``style_scale`` times the image's, both halved as the stylizer
+does) weighted by the stylizer's lambda_style, plus lambda_content times the stylizer's content term
+(``training.stylize.objective``) to the features of the image before stylization. A fresh loss, so a
 fresh CCFT guide, for every view: nothing ties one view's stylization to another's. Optionally (default on) the
 images first get the stylizer's pre colour transfer, one linear map fitted to all of them pooled, so that the
 colour statistics start where the 3D stylizer's do and the only difference is the per-view optimisation.
@@ -18,7 +19,6 @@ from collections.abc import Sequence
 
 import numpy as np
 import torch
-import torch.nn.functional as F
 
 DEFAULT_ITERS = 60
 DEFAULT_PIXEL_LR = 0.005  # Adam on pixel values in [0, 1]; 0.02 (the stylizer's SH rate) inflates contrast into noise
@@ -36,7 +36,8 @@ def stylize_images_independently(images: Sequence[np.ndarray], painting: np.ndar
     from training.core.messages import check_cancel
     from training.stylize.color_transfer import apply_to_image, fit_color_transfer
     from training.stylize.config import StylizeConfig
-    from training.stylize.style_image import check_style_array, halve, style_for_render
+    from training.stylize.objective import content_loss
+    from training.stylize.style_image import check_style_array, halve, painting_side, style_for_render
     from training.stylize.style_losses import make_style_loss
 
     painting = check_style_array(painting)
@@ -63,7 +64,8 @@ def stylize_images_independently(images: Sequence[np.ndarray], painting: np.ndar
         side = max(h, w)
         if side not in style_cache:
             with torch.no_grad():
-                style_cache[side] = vgg(halve(style_for_render(painting, side).to(device)))
+                style_cache[side] = vgg(halve(style_for_render(painting, painting_side(side, cfg.style_scale))
+                                              .to(device)))
         style = style_cache[side]
         start = torch.from_numpy(np.ascontiguousarray(image)).permute(2, 0, 1)[None].to(device)
         with torch.no_grad():
@@ -74,7 +76,7 @@ def stylize_images_independently(images: Sequence[np.ndarray], painting: np.ndar
         for _ in range(int(iters)):
             feats = vgg(halve(x))
             s_loss, _ = style_loss(feats, style)
-            total = w_style * s_loss + w_content * F.mse_loss(feats, content)
+            total = w_style * s_loss + w_content * content_loss(feats, content, cfg.content_norm)
             opt.zero_grad(set_to_none=True)
             total.backward()
             opt.step()

@@ -1,6 +1,6 @@
 """The evaluation entry points: ``measure_images`` (renders in, flat dict of floats out), ``measure_stylizer``
-(renders a Stylizer's current model, its original colours and its pre-colour-transfer colours, then measures) and
-``summary_line`` (one line for the CLI). The formulas are in the modules they come from and in docs/evaluation.md.
+(renders a Stylizer's current model, its original colours and its pre-colour-transfer colours, then measures),
+``Measure`` (that, as the stylize pipeline takes its report's metrics) and ``summary_line`` (one line for the CLI). The formulas are in the modules they come from and in docs/evaluation.md.
 
 Keys of the dict (None where a metric does not apply):
 
@@ -93,7 +93,8 @@ def measure_images(stylized: Sequence[np.ndarray], depths: Sequence[np.ndarray],
                    original: Sequence[np.ndarray | None], original_pre_ct: Sequence[np.ndarray | None] | None,
                    cameras, order: Sequence[int], painting: np.ndarray, lpips=None, taps: VGGTaps | None = None,
                    long_gap: int = LONG_GAP, style_views: int | None = STYLE_VIEWS,
-                   max_pairs: int | None = None, lpips_pairs: int | None = LPIPS_PAIRS) -> dict[str, float | None]:
+                   max_pairs: int | None = None, lpips_pairs: int | None = LPIPS_PAIRS,
+                   style_scale: float = 1.0) -> dict[str, float | None]:
     """Every metric for one stylized scene; lists indexed like ``cameras``: ``stylized`` (H, W, 3) renders in
     [0, 1], their expected depths ``depths`` (H, W, 1) and ``alphas`` (H, W, 1), ``original`` renders with the
     input colours, ``original_pre_ct`` with the colours after the pre colour transfer (None: no colour transfer).
@@ -122,16 +123,28 @@ def measure_images(stylized: Sequence[np.ndarray], depths: Sequence[np.ndarray],
         out[f"consistency_{label}_valid"] = c["valid_fraction"]
         out[f"consistency_{label}_pairs"] = float(c["pairs"])
 
+    out.update(style_and_content(stylized, original, original_pre_ct, painting, taps,
+                                 style_view_indices(n, style_views), style_scale))
+    out.update({key: None for key in PATH_KEYS + MATCH_KEYS})
+    return out
+
+
+def style_and_content(stylized, original, original_pre_ct, painting: np.ndarray, taps: VGGTaps,
+                      views: Sequence[int], style_scale: float = 1.0) -> dict[str, float | None]:
+    """The style distances and ratios and the content measures (structure distance, luminance PSNR) over ``views``
+    (``measure_images``'s keys of both kinds); the painting as the stylization saw it, ``style_scale`` times the
+    render's long side."""
+    out: dict[str, float | None] = {}
     painting_stats: dict[int, dict] = {}
     per_view = {"stylized": [], "original": [], "pre_ct": []}
     structure, psnr = [], []
-    for i in style_view_indices(n, style_views):
+    for i in views:
         if original[i] is None or (original_pre_ct is not None and original_pre_ct[i] is None):
             raise ValueError(f"view {i} is a style view: its original (and pre-colour-transfer) render is needed")
         image = np.asarray(stylized[i])[..., :3]
         h, w = image.shape[:2]
         if max(h, w) not in painting_stats:
-            painting_stats[max(h, w)] = taps_stats(taps(painting_for(painting, w, h)))
+            painting_stats[max(h, w)] = taps_stats(taps(painting_for(painting, w, h, style_scale)))
         reference = painting_stats[max(h, w)]
         t_styl, t_orig = taps(image), taps(np.asarray(original[i])[..., :3])
         per_view["stylized"].append(style_distances(t_styl, reference))
@@ -154,7 +167,6 @@ def measure_images(stylized: Sequence[np.ndarray], depths: Sequence[np.ndarray],
             out[f"{kind}_ratio_pre_ct_{layer}"] = styl[key] / pre[key] if pre[key] > 0 else None
     out["structure_distance"] = float(np.mean(structure))
     out["luminance_psnr"] = float(np.mean(psnr))
-    out.update({key: None for key in PATH_KEYS + MATCH_KEYS})
     return out
 
 
@@ -217,6 +229,35 @@ def measure_stylizer(stylizer, lpips=None, taps: VGGTaps | None = None, original
     is off; a selection mask is honoured as the stylizer does), both with the input model's geometry: ``original``'s
     when given, else ``stylizer.input_gaussians()``'s (the same as the stylized model's unless the stylizer
     optimised the geometry). ``cancel()`` is asked before each render (Cancelled)."""
+    cfg = stylizer.config
+    g = stylizer.gaussians.detached()
+    cameras = stylizer.cameras
+    args = (cfg.background, cfg.backend, stylizer.device)
+    views = style_view_indices(len(cameras), style_views)
+    styl = render_all(g, g.sh, cameras, *args, mode="RGB+ED", cancel=cancel)
+    lpips = _default_lpips(lpips)
+    orig, pre = reference_renders(stylizer, views, original, cancel)
+    order = measure_order(stylizer)
+    out = measure_images([img[..., :3] for img, _ in styl], [img[..., 3:] for img, _ in styl],
+                         [a for _, a in styl], orig, pre, cameras, order, stylizer.style_image,
+                         lpips=lpips, taps=taps, long_gap=long_gap, style_views=style_views, max_pairs=max_pairs,
+                         lpips_pairs=lpips_pairs, style_scale=cfg.style_scale)
+    out.update(match_agreement([img[..., :3] for img, _ in styl], [img[..., 3:] for img, _ in styl],
+                               [a for _, a in styl], cameras, order,
+                               lambda image: stylizer.features(image.to(stylizer.device)), stylizer.style_features,
+                               k=cfg.k, epsilon=cfg.epsilon, tau=cfg.tau, iters=cfg.sinkhorn_iters,
+                               max_pairs=max_pairs, cancel=cancel))
+    if len(cameras) >= 2:
+        out.update(path_consistency(lambda path: render_with_depth(g, path, *args, cancel=cancel), cameras, order,
+                                    lpips, long_gap=long_gap, lpips_pairs=lpips_pairs))
+    return out
+
+
+def reference_renders(stylizer, views: Sequence[int], original=None, cancel=None):
+    """(original, pre-colour-transfer) renders of the stylizer's ``views`` (lists over every camera, None at the
+    others; the second None without colour transfer): the input colours ``stylizer.original_sh`` and those colours
+    after ``stylizer.pre_transform`` (a selection mask honoured as the stylizer does), both with the input model's
+    geometry, ``original``'s when given, else ``stylizer.input_gaussians()``'s."""
     from training.model.gaussians import Gaussians
     from training.stylize.color_transfer import apply_to_gaussians
     from training.stylize.region import keep_unselected
@@ -236,7 +277,6 @@ def measure_stylizer(stylizer, lpips=None, taps: VGGTaps | None = None, original
                            opacity_logits=geometry.opacity_logits, sh0=sh[:, :1].contiguous(),
                            shN=sh[:, 1:].contiguous(), sh_degree=g.sh_degree)
     args = (cfg.background, cfg.backend, stylizer.device)
-    views = style_view_indices(len(cameras), style_views)
     few = [cameras[i] for i in views]
 
     def spread(renders):  # renders of the style views -> a list over every camera, None elsewhere
@@ -245,8 +285,6 @@ def measure_stylizer(stylizer, lpips=None, taps: VGGTaps | None = None, original
             full[i] = image
         return full
 
-    styl = render_all(g, g.sh, cameras, *args, mode="RGB+ED", cancel=cancel)
-    lpips = _default_lpips(lpips)
     orig = spread(render_all(orig_model, orig_model.sh, few, *args, mode="RGB", cancel=cancel))
     pre = None
     if stylizer.pre_transform is not None:
@@ -254,20 +292,36 @@ def measure_stylizer(stylizer, lpips=None, taps: VGGTaps | None = None, original
         moved = keep_unselected(apply_to_gaussians(orig_model, stylizer.pre_transform), orig_model,
                                 None if mask is None else torch.from_numpy(mask))
         pre = spread(render_all(moved, moved.sh, few, *args, mode="RGB", cancel=cancel))
-    order = measure_order(stylizer)
-    out = measure_images([img[..., :3] for img, _ in styl], [img[..., 3:] for img, _ in styl],
-                         [a for _, a in styl], orig, pre, cameras, order, stylizer.style_image,
-                         lpips=lpips, taps=taps, long_gap=long_gap, style_views=style_views, max_pairs=max_pairs,
-                         lpips_pairs=lpips_pairs)
-    out.update(match_agreement([img[..., :3] for img, _ in styl], [img[..., 3:] for img, _ in styl],
-                               [a for _, a in styl], cameras, order,
-                               lambda image: stylizer.features(image.to(stylizer.device)), stylizer.style_features,
-                               k=cfg.k, epsilon=cfg.epsilon, tau=cfg.tau, iters=cfg.sinkhorn_iters,
-                               max_pairs=max_pairs, cancel=cancel))
-    if len(cameras) >= 2:
-        out.update(path_consistency(lambda path: render_with_depth(g, path, *args, cancel=cancel), cameras, order,
-                                    lpips, long_gap=long_gap, lpips_pairs=lpips_pairs))
-    return out
+    return orig, pre
+
+
+def measure_style_and_content(stylizer, taps: VGGTaps | None = None, style_views: int | None = STYLE_VIEWS,
+                              cancel=None) -> dict[str, float | None]:
+    """``style_and_content`` of a Stylizer's current model at its style views: what the balance of style and
+    content moves, without the consistency measures (no LPIPS, no depth warps)."""
+    cfg = stylizer.config
+    g = stylizer.gaussians.detached()
+    views = style_view_indices(len(stylizer.cameras), style_views)
+    renders = render_all(g, g.sh, [stylizer.cameras[i] for i in views], cfg.background, cfg.backend,
+                         stylizer.device, mode="RGB", cancel=cancel)
+    stylized = [None] * len(stylizer.cameras)
+    for i, (image, _) in zip(views, renders):
+        stylized[i] = image
+    orig, pre = reference_renders(stylizer, views, cancel=cancel)
+    return style_and_content(stylized, orig, pre, stylizer.style_image, taps or VGGTaps(), views, cfg.style_scale)
+
+
+class Measure:
+    """The report's metrics as ``stylize_to_folder`` takes them (``metrics=``): ``measure_stylizer`` on the finished
+    stylization against its input model, ``max_pairs`` view pairs per range; ``version`` (METRICS_VERSION) goes
+    into the report beside them."""
+
+    def __init__(self, max_pairs: int):
+        self.max_pairs = max_pairs
+        self.version = METRICS_VERSION
+
+    def __call__(self, stylizer) -> dict:
+        return measure_stylizer(stylizer, original=stylizer.input_gaussians(), max_pairs=self.max_pairs)
 
 
 def _default_lpips(lpips):

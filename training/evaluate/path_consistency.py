@@ -7,11 +7,11 @@ through the dataset's cameras and take the flow from the model's own expected de
 depth warp of ``consistency.py``, exact for a surface where an optical-flow network would estimate it; none could be
 loaded offline anyway).
 
-The path (``smooth_path``): the cameras in the given order (the cameras' nearest path) are keyframes; between them
-the camera centre follows a centripetal Catmull-Rom spline (C1, no overshoot or loops at unevenly spaced keys: the
-same curve as ``app/camera_path.py``'s video paths, written again here because training/ does not import app/), the
-rotation is slerped and the intrinsics are interpolated linearly. ``PATH_FRAMES`` (60) frames are spaced evenly in
-the spline's parameter, one keyframe interval per unit, first and last frame on the first and last camera.
+The path (``smooth_path``): the cameras in the given order (the cameras' nearest path) are keyframes of
+training/scene/pose.py's ``path_camera``, as ``app/camera_path.py``'s video paths: between them the camera centre
+follows a centripetal Catmull-Rom spline (C1, no overshoot or loops at unevenly spaced keys), the rotation is
+slerped and the intrinsics are interpolated linearly. ``PATH_FRAMES`` (60) frames are spaced evenly in the spline's
+parameter, one keyframe interval per unit, first and last frame on the first and last camera.
 
 Unlike the camera-pair measure, every frame here is a new view of the model (none was a training view), so it also
 sees what the model shows between the cameras it was stylized at.
@@ -25,31 +25,11 @@ import numpy as np
 
 from training.evaluate.consistency import consistency_metrics
 from training.scene.scene import Camera
-from training.stylize.virtual_views import quat_to_rotation, rotation_to_quat, slerp
+from training.scene.pose import path_camera
 
 PATH_FRAMES = 60  # frames along the path (a 2-second clip at 30 fps)
 SHORT_GAP = 1
 LONG_GAP = 7
-_ALPHA = 0.5  # centripetal Catmull-Rom
-
-
-def _catmull_rom(p0, p1, p2, p3, s: float) -> np.ndarray:
-    """The point a fraction ``s`` of the way from p1 to p2 on the centripetal Catmull-Rom spline through p0..p3
-    (Barry and Goldman's pyramidal form)."""
-    def knot(a, b):
-        return max(float(np.linalg.norm(b - a)) ** _ALPHA, 1e-9)  # coincident keys: a tiny step, not a 0/0
-
-    t0 = 0.0
-    t1 = t0 + knot(p0, p1)
-    t2 = t1 + knot(p1, p2)
-    t3 = t2 + knot(p2, p3)
-    t = t1 + s * (t2 - t1)
-    a1 = ((t1 - t) * p0 + (t - t0) * p1) / (t1 - t0)
-    a2 = ((t2 - t) * p1 + (t - t1) * p2) / (t2 - t1)
-    a3 = ((t3 - t) * p2 + (t - t2) * p3) / (t3 - t2)
-    b1 = ((t2 - t) * a1 + (t - t0) * a2) / (t2 - t0)
-    b2 = ((t3 - t) * a2 + (t - t1) * a3) / (t3 - t1)
-    return ((t2 - t) * b1 + (t - t1) * b2) / (t2 - t1)
 
 
 def smooth_path(cameras: Sequence[Camera], order: Sequence[int], frames: int = PATH_FRAMES) -> list[Camera]:
@@ -59,25 +39,8 @@ def smooth_path(cameras: Sequence[Camera], order: Sequence[int], frames: int = P
         raise ValueError(f"a camera path needs at least 2 cameras, got {len(keys)}")
     if frames < 2:
         raise ValueError(f"a camera path needs at least 2 frames, got {frames}")
-    centres = [np.asarray(c.center, dtype=np.float64) for c in keys]
-    # the ends extended by reflection, so the first and last segments are splines too
-    ext = [2 * centres[0] - centres[1], *centres, 2 * centres[-1] - centres[-2]]
-    quats = [rotation_to_quat(c.camera_to_world[:3, :3]) for c in keys]
-    out = []
-    for k, u in enumerate(np.linspace(0.0, len(keys) - 1, frames)):
-        i = min(int(np.floor(u)), len(keys) - 2)
-        s = float(u - i)
-        a, b = keys[i], keys[i + 1]
-        centre = _catmull_rom(ext[i], ext[i + 1], ext[i + 2], ext[i + 3], s)
-        R = quat_to_rotation(slerp(quats[i], quats[i + 1], s))
-        w2c = np.eye(4)
-        w2c[:3, :3] = R.T
-        w2c[:3, 3] = -R.T @ centre
-        lerp = lambda x, y: (1 - s) * x + s * y  # noqa: E731
-        out.append(Camera(name=f"path_{k:03d}", width=int(round(lerp(a.width, b.width))),
-                          height=int(round(lerp(a.height, b.height))), fx=lerp(a.fx, b.fx), fy=lerp(a.fy, b.fy),
-                          cx=lerp(a.cx, b.cx), cy=lerp(a.cy, b.cy), world_to_camera=w2c))
-    return out
+    return [path_camera(keys, float(u), f"path_{k:03d}")
+            for k, u in enumerate(np.linspace(0.0, len(keys) - 1, frames))]
 
 
 Renderer = Callable[[Sequence[Camera]], tuple[list[np.ndarray], list[np.ndarray], list[np.ndarray]]]

@@ -125,11 +125,11 @@ def sliced_wasserstein(feats: torch.Tensor, style_feats: torch.Tensor) -> float:
     return stats_sliced_wasserstein(feature_stats(feats), feature_stats(style_feats))
 
 
-def painting_for(painting: np.ndarray, width: int, height: int) -> torch.Tensor:
-    """(1, 3, h, w) painting with its long side equal to the render's long side."""
-    from training.stylize.style_image import check_style_array, style_for_render
+def painting_for(painting: np.ndarray, width: int, height: int, style_scale: float = 1.0) -> torch.Tensor:
+    """(1, 3, h, w) painting as the stylization saw it: its long side ``style_scale`` times the render's."""
+    from training.stylize.style_image import check_style_array, painting_side, style_for_render
 
-    return style_for_render(check_style_array(painting), max(width, height))
+    return style_for_render(check_style_array(painting), painting_side(max(width, height), style_scale))
 
 
 def taps_stats(taps: dict[str, torch.Tensor], layers=LAYERS) -> dict[str, FeatureStats]:

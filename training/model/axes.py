@@ -81,7 +81,8 @@ def convert_axes(gaussians: Gaussians, source: str, target: str, in_place: bool 
             if k:
                 g.shN.mul_(torch.tensor(sh_signs(s, k), dtype=g.shN.dtype, device=device)[None, :, None])
         else:
-            from training.model.transform import matrix_to_quat, quat_multiply, sh_rotation
+            from training.model.transform import quat_multiply, sh_rotation
+            from training.scene.pose import matrix_to_quat
 
             g.means.copy_(g.means @ torch.tensor(m.T, dtype=dtype, device=device))
             proper = m * np.linalg.det(m)

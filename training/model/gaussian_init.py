@@ -138,10 +138,7 @@ def random_view_points(scene: Scene, n: int, seed: int = 0) -> np.ndarray:
         u = rng.uniform(0.0, cam.width, m)
         v = rng.uniform(0.0, cam.height, m)
         z = np.cbrt(near**3 + rng.uniform(0.0, 1.0, m) * (far**3 - near**3))
-        p_cam = np.stack([(u - cam.cx) / cam.fx * z, (v - cam.cy) / cam.fy * z, z], axis=1)
-        R = cam.world_to_camera[:3, :3]
-        tvec = cam.world_to_camera[:3, 3]
-        out[idx] = (p_cam - tvec) @ R  # R^T (p_cam - t), row-wise
+        out[idx] = cam.unproject(u, v, z)
     return out
 
 

@@ -18,17 +18,19 @@ signature (gzip's two bytes once in 65,536 files). So a file named ``.splat`` is
 format's header holds up beyond the signature: a gzip stream that inflates to ``NGSP``, ``NGSP`` followed by
 version 4, ``glTF`` followed by version 2 and the file's length, a PLY header that parses. A file whose bytes match
 none gets the error of the format its name asks for (``x.spz: not an SPZ file ...``), or says which files are
-models. What comes back is validated once here: at least one Gaussian, every value finite (each reader also
-refuses what its format rules out), on ``device``, with RDF axes (training/model/axes.py); a model too large for
-the memory left is one line naming the file too.
+models. What comes back is validated once here: at least one Gaussian, every value finite, log-scales whose
+covariance float32 holds (each reader also refuses what its format rules out), on ``device``, with RDF axes
+(training/model/axes.py); a model too large for the memory left is one line naming the file too.
 """
 
 from __future__ import annotations
 
+import math
 import struct
 import zlib
 from pathlib import Path
 
+import numpy as np
 import torch
 
 from training.core.errors import InputError
@@ -40,6 +42,10 @@ MODEL_SUFFIXES = (".ply", ".splat", ".spz", ".glb")  # .compressed.ply ends in .
 FILE_DIALOG_PATTERN = " ".join("*" + s for s in MODEL_SUFFIXES)
 WHAT_MODELS_ARE = "a Gaussian model file (.ply, .compressed.ply, .splat, .spz or .glb)"
 _GZIP = b"\x1f\x8b"
+# The largest log-scale a model may hold: its scale squared (the covariance every renderer builds) and the scale
+# itself (what .splat and .glb store) stay finite in float32. A finite log-scale of 100 was read before, and its
+# .splat or .glb export held an infinite scale that the readers then refused.
+MAX_LOG_SCALE = math.log(float(np.finfo(np.float32).max)) / 2  # 44.36: a scale of 1.8e19
 
 
 def has_model_suffix(path: str | Path) -> bool:
@@ -153,4 +159,9 @@ def read_model(path: str | Path, device: str | torch.device = "cpu", spz_axes: s
         if t.numel() and not bool(torch.isfinite(t).all()):
             bad = int((~torch.isfinite(t)).reshape(n, -1).any(dim=1).sum())
             raise InputError(path, f"{bad} of {n} Gaussians have NaN or infinite {name}")
+    big = gaussians.log_scales > MAX_LOG_SCALE
+    if bool(big.any()):
+        raise InputError(path, f"{int(big.any(dim=1).sum())} of {n} Gaussians have a log-scale above "
+                               f"{MAX_LOG_SCALE:.2f} (up to {float(gaussians.log_scales.max()):.4g}): their "
+                               "covariance, the scale squared, is infinite in float32")
     return gaussians.to(device)

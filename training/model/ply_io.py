@@ -158,8 +158,13 @@ def _parse_header(path: Path, head: bytes) -> tuple[str, list[_Element], list[st
                 count = -1
             if count < 0:
                 raise InputError(path, f"PLY header line {lineno}: bad element count '{words[2]}'")
+            if any(e.name == words[1] for e in elements):
+                raise InputError(path, f"PLY header line {lineno}: a second element '{words[1]}'")
             elements.append(_Element(words[1], count))
         elif words[0] == "property" and elements:
+            if words[-1] in (name for name, _ in elements[-1].properties):
+                raise InputError(path, f"PLY header line {lineno}: element '{elements[-1].name}' has a second "
+                                       f"property '{words[-1]}'")
             if len(words) >= 2 and words[1] == "list":
                 elements[-1].has_list = True
                 elements[-1].properties.append((words[-1], "list"))
@@ -278,6 +283,11 @@ def read_ply(path: str | Path, device: str | torch.device = "cpu") -> Gaussians:
             bad = int((~np.isfinite(col)).sum())
             if bad:
                 raise InputError(path, f"{bad} of {n} Gaussians have NaN or infinite '{name}'")
+            if col.dtype.itemsize > 4:  # doubles: the model holds float32, where 1e300 is infinite
+                bad = int((np.abs(col) > np.finfo(np.float32).max).sum())
+                if bad:
+                    raise InputError(path, f"{bad} of {n} Gaussians have '{name}' beyond float32's range (up to "
+                                           f"{float(np.abs(col).max()):.3g})")
 
     def cols(names: list[str]) -> np.ndarray:
         return np.stack([table[c].astype(np.float32) for c in names], axis=1) if names else np.zeros((n, 0), np.float32)

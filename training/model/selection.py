@@ -14,6 +14,7 @@ import numpy as np
 
 from training.core.atomic_write import atomic_path
 from training.core.errors import InputError
+from training.core.npy_io import read_npy
 
 
 def _means(means) -> np.ndarray:
@@ -75,19 +76,23 @@ def load_mask(path: str | Path, n: int) -> np.ndarray:
         return indices_to_mask(values.astype(np.int64), n, path)
     if path.suffix.lower() != ".npy":
         raise InputError(path, "a selection file is .npy (bool mask or indices) or .txt (indices)")
-    try:
-        array = np.load(path, allow_pickle=False)
-    except (ValueError, OSError) as exc:
-        raise InputError(path, f"not a readable .npy file ({exc})") from None
-    if array.ndim != 1:
-        raise InputError(path, f"a selection is 1-D (a mask or indices), this array has shape {array.shape}")
-    if array.dtype == bool:
-        if len(array) != n:
-            raise InputError(path, f"the mask has {len(array)} entries; the model has {n} Gaussians")
-        return array.copy()
-    if np.issubdtype(array.dtype, np.integer):
-        return indices_to_mask(array, n, path)
-    raise InputError(path, f"a selection holds bool or integer values, not {array.dtype}")
+
+    def check(shape: tuple[int, ...], dtype: np.dtype) -> None:
+        if len(shape) != 1:
+            raise InputError(path, f"a selection is 1-D (a mask or indices), this array has shape {shape}")
+        if dtype != bool and not np.issubdtype(dtype, np.integer):
+            raise InputError(path, f"a selection holds bool or integer values, not {dtype}")
+        if dtype == bool and shape[0] != n:
+            raise InputError(path, f"the mask has {shape[0]} entries; the model has {n} Gaussians")
+
+    try:  # bounded by the file's size: its header is checked before the data is read
+        with open(path, "rb") as f:
+            array = read_npy(f, path.stat().st_size, check)
+    except ValueError as exc:
+        raise InputError(path, f"not a readable .npy file ({str(exc).splitlines()[0]})") from None
+    except OSError as exc:
+        raise InputError(path, f"cannot read: {exc.strerror or exc}") from None
+    return array if array.dtype == bool else indices_to_mask(array, n, path)
 
 
 def save_mask(path: str | Path, mask) -> None:

@@ -20,6 +20,7 @@ import torch
 
 from training.model.gaussians import Gaussians, num_sh_coeffs
 from training.model.sh import sh_basis
+from training.scene.pose import matrix_to_quat
 
 SIMILARITY_TOLERANCE = 1e-5  # relative: R^T R = I, det R = 1 after the scale is divided out
 
@@ -77,26 +78,6 @@ def quat_multiply(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     bw, bx, by, bz = np.moveaxis(b, -1, 0)
     return np.stack([aw * bw - ax * bx - ay * by - az * bz, aw * bx + ax * bw + ay * bz - az * by,
                      aw * by - ax * bz + ay * bw + az * bx, aw * bz + ax * by - ay * bx + az * bw], axis=-1)
-
-
-def matrix_to_quat(r: np.ndarray) -> np.ndarray:
-    """(w, x, y, z) of a rotation matrix (Shepperd's method: stable at every angle)."""
-    m = np.asarray(r, dtype=np.float64)
-    tr = np.trace(m)
-    if tr > 0:
-        s = 2.0 * math.sqrt(1.0 + tr)
-        q = [0.25 * s, (m[2, 1] - m[1, 2]) / s, (m[0, 2] - m[2, 0]) / s, (m[1, 0] - m[0, 1]) / s]
-    else:
-        i = int(np.argmax(np.diag(m)))
-        j, k = (i + 1) % 3, (i + 2) % 3
-        s = 2.0 * math.sqrt(max(1.0 + m[i, i] - m[j, j] - m[k, k], 1e-300))
-        q = [0.0] * 4
-        q[0] = (m[k, j] - m[j, k]) / s
-        q[1 + i] = 0.25 * s
-        q[1 + j] = (m[j, i] + m[i, j]) / s
-        q[1 + k] = (m[k, i] + m[i, k]) / s
-    q = np.asarray(q)
-    return q / np.linalg.norm(q)
 
 
 def transform_gaussians(g: Gaussians, matrix) -> Gaussians:

@@ -6,6 +6,7 @@ Changing a value here changes the compiled cpu kernels, but numba's on-disk cach
 defines each kernel: after an edit here, clear ``training/raster/__pycache__`` (see docs/rasterizer.md).
 """
 
+BACKENDS = ("auto", "cpu", "cuda", "torch")  # rasterizer backends; "auto": cuda where it runs, else cpu
 ALPHA_MIN = 1.0 / 255.0  # a Gaussian whose alpha at a pixel is below this is skipped there
 ALPHA_MAX = 0.99  # alpha is clamped here (graphdeco's kernels; gsplat uses 0.999)
 T_MIN = 1e-4  # a Gaussian that would bring a pixel's transmittance to this or below ends the pixel uncomposited

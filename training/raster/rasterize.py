@@ -16,7 +16,7 @@ import os
 
 import torch
 
-from training.raster.constants import EPS2D, FAR_PLANE, NEAR_PLANE, TILE_SIZE
+from training.raster.constants import BACKENDS, EPS2D, FAR_PLANE, NEAR_PLANE, TILE_SIZE
 
 RENDER_MODES = {
     # mode: (rgb channels, depth channel, depth divided by alpha)
@@ -26,7 +26,6 @@ RENDER_MODES = {
     "RGB+D": (True, True, False),
     "RGB+ED": (True, True, True),
 }
-BACKENDS = ("auto", "cpu", "cuda", "torch")
 
 
 def camera_matrices(camera, dtype=torch.float32, device=None) -> tuple[torch.Tensor, torch.Tensor]:

@@ -27,31 +27,15 @@ New Gaussians start with zero Adam moments, removed ones take theirs with them (
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
 from typing import Callable
 
 import torch
 
 from training.model.gaussians import Gaussians
 from training.model.rotation import quat_to_rotmat
+from training.reconstruct.config import DensifyConfig
 
 PARAM_NAMES = ("means", "log_scales", "quats", "opacity_logits", "sh0", "shN")
-
-
-@dataclass
-class DensifyConfig:
-    start: int = 500
-    stop: int = 15000
-    interval: int = 100
-    grad_threshold: float = 0.0002
-    percent_dense: float = 0.01
-    min_opacity: float = 0.005
-    prune_world: float = 0.1
-    prune_screen: float = 0.15  # of the image's long side; 0 = no screen-size pruning
-    reset_every: int = 3000
-    reset_opacity: float = 0.01
-    max_gaussians: int | None = None
-    enabled: bool = True
 
 
 def _edit_params(model: Gaussians, optimizer: torch.optim.Optimizer,

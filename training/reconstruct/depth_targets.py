@@ -38,17 +38,11 @@ def project_points(points: np.ndarray, camera: Camera, near: float = 1e-6) -> tu
                                                                                        np.ndarray]:
     """Project (P, 3) world points; returns (pixel x (P,) int, pixel y (P,) int, z (P,)) for the points in front
     of the camera that land inside the image."""
-    pts = np.asarray(points, dtype=np.float64)
-    R = camera.world_to_camera[:3, :3]
-    t = camera.world_to_camera[:3, 3]
-    pc = pts @ R.T + t
-    z = pc[:, 2]
-    front = z > near
-    pc, z = pc[front], z[front]
-    u = camera.fx * pc[:, 0] / z + camera.cx
-    v = camera.fy * pc[:, 1] / z + camera.cy
-    px = np.floor(u).astype(np.int64)
-    py = np.floor(v).astype(np.int64)
+    pc = camera.camera_points(points)
+    uv, front = camera.pixels(pc, near)
+    z = pc[front, 2]
+    px = np.floor(uv[front, 0]).astype(np.int64)
+    py = np.floor(uv[front, 1]).astype(np.int64)
     inside = (px >= 0) & (px < camera.width) & (py >= 0) & (py < camera.height)
     return px[inside], py[inside], z[inside]
 

@@ -1,6 +1,8 @@
-"""The one pinhole camera of splatstyler: a pose and intrinsics, and the projection math on them. numpy only (no
-torch): the loaders, the trainers, renderer_gl, camera paths and the viewer's selections, picks and gizmo all use
-it; the torch side turns it into tensors in one place (``training.raster.rasterize.camera_matrices``).
+"""The one pinhole camera of splatstyler: a pose and intrinsics, and the projection math on them (points to pixels
+and back). numpy only (no torch): the loaders, the trainers, renderer_gl, camera paths and the viewer's selections,
+picks and gizmo all use it; the torch side turns it into tensors in one place
+(``training.raster.rasterize.camera_matrices``). Pose maths (look-at, orbits, quaternions, interpolation between
+cameras) is beside it in training/scene/pose.py.
 
 Conventions (shared by the whole code base):
 - ``world_to_camera`` is a 4x4 float64 matrix in the OpenCV/COLMAP camera convention: x right, y down, z forward
@@ -77,22 +79,37 @@ class Camera:
                        cx=self.cx * sx, cy=self.cy * sy, world_to_camera=np.array(self.world_to_camera, np.float64))
 
     # ------------------------------------------------------------------ projection
-    def project(self, points) -> tuple[np.ndarray, np.ndarray]:
-        """Pixel coordinates (N, 2) of world points (N, 3), and whether each is in front of the camera."""
+    def camera_points(self, points) -> np.ndarray:
+        """(N, 3) camera coordinates (x right, y down, z forward: the depth) of world points (N, 3)."""
         w2c = np.asarray(self.world_to_camera, dtype=np.float64)
-        pc = np.asarray(points, np.float64).reshape(-1, 3) @ w2c[:3, :3].T + w2c[:3, 3]
+        return np.asarray(points, np.float64).reshape(-1, 3) @ w2c[:3, :3].T + w2c[:3, 3]
+
+    def pixels(self, camera_points, near: float = 1e-6) -> tuple[np.ndarray, np.ndarray]:
+        """Pixel coordinates (N, 2) of camera-space points (N, 3), and whether each is in front of the camera (z >
+        ``near``); a point that is not lands where it would at depth 1."""
+        pc = np.asarray(camera_points, np.float64).reshape(-1, 3)
         z = pc[:, 2]
-        front = z > 1e-6
+        front = z > near
         zs = np.where(front, z, 1.0)
         uv = np.stack([self.fx * pc[:, 0] / zs + self.cx, self.fy * pc[:, 1] / zs + self.cy], axis=1)
         return uv, front
 
-    def unproject(self, x: float, y: float, depth: float) -> np.ndarray:
-        """The world point seen at pixel position (x, y) (continuous, from the top-left corner) at camera depth
-        ``depth`` (along the camera's z axis, as the renderer's depth output)."""
-        p = np.array([(x - self.cx) / self.fx * depth, (y - self.cy) / self.fy * depth, depth])
+    def project(self, points, near: float = 1e-6) -> tuple[np.ndarray, np.ndarray]:
+        """Pixel coordinates (N, 2) of world points (N, 3), and whether each is in front of the camera."""
+        return self.pixels(self.camera_points(points), near)
+
+    def rays(self, x, y) -> np.ndarray:
+        """Camera-space points at depth 1 seen at pixel positions (x, y) (continuous, from the top-left corner):
+        numbers give (3,), arrays of one shape (..., 3)."""
+        x, y = np.asarray(x, np.float64), np.asarray(y, np.float64)
+        return np.stack(np.broadcast_arrays((x - self.cx) / self.fx, (y - self.cy) / self.fy, 1.0), axis=-1)
+
+    def unproject(self, x, y, depth) -> np.ndarray:
+        """The world points seen at pixel positions (x, y) at camera depth ``depth`` (along the camera's z axis, as
+        the renderer's depth output): numbers give (3,), arrays of one shape (..., 3)."""
+        p = self.rays(x, y) * np.asarray(depth, np.float64)[..., None]
         w2c = np.asarray(self.world_to_camera, np.float64)
-        return w2c[:3, :3].T @ (p - w2c[:3, 3])
+        return (p - w2c[:3, 3]) @ w2c[:3, :3]
 
     def gl_view_projection(self, near: float, far: float) -> tuple[np.ndarray, np.ndarray]:
         """OpenGL view and projection matrices: OpenCV's x right, y down, z forward becomes GL's x right, y up,

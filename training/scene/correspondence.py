@@ -27,18 +27,18 @@ MIN_CELLS = 8  # a pair of views with fewer corresponding feature cells gives no
 def warp_points(xs: torch.Tensor, ys: torch.Tensor, zt: torch.Tensor, target_camera,
                 source_camera) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
     """Target pixel coordinates (xs, ys) (pixel centres at +0.5) at camera depths ``zt`` -> their pixel coordinates
-    (u, v) in the source view and their depth z there; float64 tensors of the inputs' shape."""
-    Kt = torch.as_tensor(target_camera.K, dtype=torch.float64)
-    rays = torch.stack([(xs - Kt[0, 2]) / Kt[0, 0], (ys - Kt[1, 2]) / Kt[1, 1], torch.ones_like(xs)], dim=-1)
-    pc = rays * zt[..., None]
-    # target camera -> source camera in one rigid transform
-    T = torch.as_tensor(np.asarray(source_camera.world_to_camera) @ np.linalg.inv(target_camera.world_to_camera),
-                        dtype=torch.float64)
-    ps = pc @ T[:3, :3].T + T[:3, 3]
-    z = ps[..., 2]
-    Ks = torch.as_tensor(source_camera.K, dtype=torch.float64)
-    zsafe = torch.where(z > 1e-9, z, torch.ones_like(z))
-    return Ks[0, 0] * ps[..., 0] / zsafe + Ks[0, 2], Ks[1, 1] * ps[..., 1] / zsafe + Ks[1, 2], z
+    (u, v) in the source view and their depth z there; float64 tensors of the inputs' shape. The cameras are
+    training/scene/camera.py's, which unproject and project."""
+    def plain(t):
+        return t.detach().cpu().numpy()
+
+    ps = source_camera.camera_points(target_camera.unproject(plain(xs), plain(ys), plain(zt)))
+    uv, _ = source_camera.pixels(ps, near=1e-9)
+
+    def back(a):
+        return torch.from_numpy(np.ascontiguousarray(a)).reshape(xs.shape)
+
+    return back(uv[:, 0]), back(uv[:, 1]), back(ps[:, 2])
 
 
 def sample_bilinear(image: torch.Tensor, u: torch.Tensor, v: torch.Tensor) -> torch.Tensor:

@@ -22,7 +22,7 @@ from __future__ import annotations
 import hashlib
 import json
 from pathlib import Path
-from typing import Any
+from typing import Any, Callable
 
 import numpy as np
 
@@ -140,3 +140,20 @@ def check_same_inputs(recorded: dict[str, Any] | None, current: dict[str, Any], 
     if diff is not None:
         raise InputsChanged(where, f"{made}: {diff}; {HINT}", diff)
     return None
+
+
+def state_to_resume(state: dict[str, Any], current: dict[str, Any], where: str | Path, force: bool,
+                    say: Callable[[str], None], warn: Callable[[str], None]) -> dict[str, Any] | None:
+    """A checkpoint's ``state`` (holding the fingerprint of its inputs) to resume from when it was made from the
+    inputs ``current`` describes (or records none: ``warn`` says they could not be checked); when they differ,
+    InputsChanged, or with ``force`` None (start afresh), which ``say`` says."""
+    try:
+        warning = check_same_inputs(state.get("fingerprint"), current, where)
+    except InputsChanged as exc:
+        if not force:
+            raise
+        say(f"{where}: made from other inputs ({exc.difference}): starting afresh (--force)")
+        return None
+    if warning:
+        warn(warning)
+    return state

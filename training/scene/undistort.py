@@ -60,8 +60,7 @@ def undistortion_map(camera, target: Camera) -> tuple[np.ndarray, np.ndarray]:
     positions) in the distorted image to sample for each pixel of the undistorted one."""
     ys, xs = np.meshgrid(np.arange(target.height, dtype=np.float64) + 0.5,
                          np.arange(target.width, dtype=np.float64) + 0.5, indexing="ij")
-    rays = np.stack([(xs.ravel() - target.cx) / target.fx, (ys.ravel() - target.cy) / target.fy,
-                     np.ones(xs.size)], axis=1)
+    rays = target.rays(xs.ravel(), ys.ravel())
     src = np.asarray(camera.img_from_cam(rays), dtype=np.float64).reshape(target.height, target.width, 2)
     return (src[..., 1] - 0.5).astype(np.float32), (src[..., 0] - 0.5).astype(np.float32)
 

@@ -1,6 +1,6 @@
 """A stylization's checkpoint, OUT/stylize_checkpoint.pt: the Stylizer's ``state_dict()``, what the pipeline had
-measured before the loop, and the fingerprint of the inputs (training/scene/fingerprint.py), in the checkpoint
-file format of training/reconstruct/checkpoint.py (atomic, ``weights_only`` loading).
+measured before the loop, and the fingerprint of the inputs (training/scene/fingerprint.py), in the
+trainers' checkpoint file (training/core/checkpoint.py: atomic, ``weights_only`` loading).
 
 The fingerprint holds the dataset, the model file's and the painting's sha256, the selection, and the settings the
 Stylizer fixes when it is built (``FIXED_AT_START``: which views, their order, the render size, the colour
@@ -17,8 +17,8 @@ from typing import Any
 
 import numpy as np
 
+from training.core.checkpoint import load_checkpoint, save_checkpoint
 from training.core.errors import InputError
-from training.reconstruct.checkpoint import load_checkpoint, save_checkpoint
 from training.scene.fingerprint import dataset_fingerprint, file_sha256, make_fingerprint
 from training.stylize.trainer import FIXED_AT_START, StylizeConfig, Stylizer
 

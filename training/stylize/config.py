@@ -3,11 +3,15 @@ imply: iterations per view and in all, and the render resolution."""
 
 from __future__ import annotations
 
+import math
+import numbers
 from dataclasses import dataclass
+
+import numpy as np
 
 from training.scene.scene import Camera
 from training.stylize import defaults as D
-from training.stylize.defaults import (FORWARD_ITERS_PER_VIEW, FORWARD_MIN_TOTAL, LOSSES, ORBIT_ITERS_PER_VIEW,
+from training.stylize.defaults import (CONTENT_NORMS, CONTENT_SOURCES, MAX_STYLE_SCALE, FORWARD_ITERS_PER_VIEW, FORWARD_MIN_TOTAL, LOSSES, ORBIT_ITERS_PER_VIEW,
                                        ORBIT_ITERS_PER_VIEW_MANY, ORBIT_MANY_VIEWS, PAPER_MAX_SIDE, PARAMS, PRESETS,
                                        QUICK_ITER_FRACTION, QUICK_MAX_SIDE, SCENE_KINDS, SCHEDULES,
                                        STANDARD_MAX_SIDE, VIEW_ORDERS)
@@ -20,8 +24,17 @@ DEFAULT_LR = D.LR
 # the rule a value must meet; a value outside the span but within the rule (from the CLI) is kept, not clamped.
 RANGES: dict[str, tuple[float, float, bool]] = {
     "tau": (0.01, 10.0, True), "epsilon": (0.005, 0.5, True), "lambda_guide": (0.0, 10.0, False),
-    "lambda_content": (0.0, 0.1, False), "lambda_style": (0.0, 100.0, False), "lr": (0.001, 0.1, True),
+    "lambda_content": (0.0, 50.0, False), "style_scale": (0.5, 8.0, True), "lambda_tv": (0.0, 100.0, False),
+    "lr_final": (0.01, 1.0, True), "lambda_style": (0.0, 100.0, False), "lr": (0.001, 1.0, True),
     "k": (1, 64, False), "iters_per_view": (0, 100, False), "virtual_views": (0, 4, False)}
+
+
+# the fields by kind, each checked by ``validate`` (a None in OPTIONAL means "from the preset / the paper")
+WHOLE_NUMBERS = ("k", "sinkhorn_iters", "iters_per_view", "min_total_iters", "seed", "virtual_views", "max_side")
+NUMBERS = ("tau", "epsilon", "lambda_guide", "lambda_style", "lambda_content", "lr", "style_scale", "lambda_tv",
+           "lr_final")
+FLAGS = ("dc_only", "color_transfer", "measure_balance")
+OPTIONAL = ("iters_per_view", "min_total_iters", "max_side", "lambda_style", "lr")
 
 
 @dataclass
@@ -36,7 +49,13 @@ class StylizeConfig:
     sinkhorn_iters: int = D.SINKHORN_ITERS
     lambda_style: float | None = None  # None: DEFAULT_LAMBDA_STYLE[loss] (30 for CCFT)
     lambda_content: float = D.LAMBDA_CONTENT
+    content_norm: str = "relative"  # relative: ||X - X^||^2 / ||X^||^2 | mse: ARF's mean (objective.py)
+    content_source: str = D.CONTENT_SOURCE  # photo: the photos (ARF) | render: the input model's renders
+    style_scale: float = D.STYLE_SCALE  # the painting's long side / the render's (stroke size)
+    lambda_tv: float = D.LAMBDA_TV  # total variation of the render
     lr: float | None = None  # Adam learning rate of sh0 (shN: lr / 20); None: DEFAULT_LR
+    lr_final: float = D.LR_FINAL  # the rate decays exponentially to lr * lr_final at the last iteration
+    measure_balance: bool = True  # the style and content gradients' norms on the render, every step
     iters_per_view: int | None = None
     min_total_iters: int | None = None
     scene_kind: str = "auto"  # auto | forward | 360
@@ -44,7 +63,7 @@ class StylizeConfig:
     schedule: str = "interleaved"  # interleaved: a new view every iteration (the paper) | block: iters_per_view in a row
     seed: int = 0
     virtual_views: int = 0
-    dc_only: bool = False  # keep shN at its initial values (frozen): the stylization is view-independent
+    dc_only: bool = D.DC_ONLY  # keep shN at its initial values (frozen): the stylization is view-independent
     params: str = "colour"  # colour: SH colours only (the paper) | all: geometry too (the paper's ablation)
     preset: str = "paper"  # paper | standard (the paper's iterations at 512 px) | quick
     max_side: int | None = None  # long side of the renders; None: the preset's
@@ -54,6 +73,22 @@ class StylizeConfig:
     background: tuple[float, float, float] = (0.0, 0.0, 0.0)
 
     def validate(self) -> None:
+        for name in WHOLE_NUMBERS:  # a project's JSON may hold 4.0 or 1e400 where a command line's int could not
+            v = getattr(self, name)
+            if not (v is None and name in OPTIONAL) and (isinstance(v, bool) or not isinstance(v, numbers.Integral)):
+                raise ValueError(f"{name} must be a whole number, got {v!r}")
+        for name in NUMBERS:
+            v = getattr(self, name)
+            if not (v is None and name in OPTIONAL) and (isinstance(v, bool) or not isinstance(v, numbers.Real)
+                                                        or not math.isfinite(v)):
+                raise ValueError(f"{name} must be a finite number, got {v!r}")
+        for name in FLAGS:
+            if not isinstance(getattr(self, name), (bool, np.bool_)):
+                raise ValueError(f"{name} must be true or false, got {getattr(self, name)!r}")
+        bg = self.background
+        if (not isinstance(bg, (tuple, list)) or len(bg) != 3
+                or not all(isinstance(c, numbers.Real) and not isinstance(c, bool) and 0 <= c <= 1 for c in bg)):
+            raise ValueError(f"background must be 3 numbers in [0, 1], got {bg!r}")
         if self.loss not in LOSSES:
             raise ValueError(f"unknown loss {self.loss!r}; expected one of {', '.join(LOSSES)}")
         if self.preset not in PRESETS:
@@ -64,11 +99,19 @@ class StylizeConfig:
             raise ValueError(f"schedule must be one of {', '.join(SCHEDULES)}, got {self.schedule!r}")
         if self.scene_kind not in SCENE_KINDS:
             raise ValueError(f"unknown scene kind {self.scene_kind!r}; expected auto, forward or 360")
+        if self.content_source not in CONTENT_SOURCES:
+            raise ValueError(f"content_source must be one of {', '.join(CONTENT_SOURCES)}, got "
+                             f"{self.content_source!r}")
+        if self.content_norm not in CONTENT_NORMS:
+            raise ValueError(f"content_norm must be one of {', '.join(CONTENT_NORMS)}, got {self.content_norm!r}")
         if self.params not in PARAMS:  # worded "<field> ..." so the CLI can name the flag
             raise ValueError(f"params must be one of {', '.join(PARAMS)}, got {self.params!r}")
         checks = [("k", self.k >= 1, "at least 1"), ("epsilon", self.epsilon > 0, "positive"),
                   ("tau", self.tau > 0, "positive"), ("sinkhorn_iters", self.sinkhorn_iters >= 1, "at least 1"),
                   ("lambda_content", self.lambda_content >= 0, "at least 0"),
+                  ("style_scale", 0 < self.style_scale <= MAX_STYLE_SCALE, f"in (0, {MAX_STYLE_SCALE:g}]"),
+                  ("lambda_tv", self.lambda_tv >= 0, "at least 0"),
+                  ("lr_final", 0 < self.lr_final <= 1, "in (0, 1]"),
                   ("lr", self.lr is None or self.lr > 0, "positive"),
                   ("virtual_views", self.virtual_views >= 0, "at least 0"),
                   ("lambda_guide", self.lambda_guide >= 0, "at least 0"),

@@ -4,19 +4,42 @@ where the paper is silent. Torch-free, so the CLI's help text and the viewer's s
 Paper, "Implementation Details": {K, epsilon, tau, lambda_guide, lambda_CCFT, lambda_content} =
 {16, 0.05, 0.5, 1, 30, 0.005}. Supplementary, "Additional Implementation Details": 50 iterations per view with at
 least 2,000 in all for forward-facing scenes; 20 per view for 360-degree scenes of at most 200 views, 15 above.
+
+Where we depart from those figures (issue 37; docs/stylization.md, "The content balance", has the measurements):
+the paper's content weight 0.005 is ARF's, for a mean-square content loss beside a style weight of 1, and with
+CCFT at 30 it leaves the content gradient at 2-3% of the style gradient: the painting replaces the scene. Our
+content term is relative (||X - X^||^2 / ||X^||^2) and its weight is set by one rule: the content and style
+gradients on the render balance (median ratio near 1 over a run, reported as ``gradient_balance``). The fox sweep
+(59k Gaussians, quick preset, The Starry Night) chose the rest: the painting at twice the render's long side (its
+strokes, not its moons, at relu3's scale), the DC colour only, the content read from the input model's renders,
+a little total variation, a decaying learning rate, and K = 32 nearest painting features per rendered one.
 """
 
 from __future__ import annotations
 
 # CCFT (Algorithm 1)
-K = 16
+# K (nearest painting features per rendered feature): 32 where the paper has 16. With the painting at twice the
+# render's size there are four times as many painting features to choose among; in the fox sweep K = 32 moved both
+# measures a little the right way (structure distance 0.0791 against 0.0798, style distance 0.798 against 0.809,
+# all else equal): within the acceptance where K = 16 was not.
+K = 32
 EPSILON = 0.05
 TAU = 0.5
 LAMBDA_GUIDE = 1.0
 # Algorithm 1 leaves the Sinkhorn iteration count open; 50 reaches a plan that no longer changes at float32.
 SINKHORN_ITERS = 50
 LAMBDA_CCFT = 30.0
-LAMBDA_CONTENT = 0.005
+# The relative content weight where the content and style gradients on the render balance (median content/style
+# 0.97 on the fox sweep; 0.005 in ARF's unit is about 0.11 in ours, a ratio of 0.03).
+LAMBDA_CONTENT = 8.0
+CONTENT_NORMS = ("relative", "mse")
+CONTENT_SOURCES = ("photo", "render")
+CONTENT_SOURCE = "render"  # the input model (what the user made); "photo": ARF's choice
+STYLE_SCALE = 2.0  # the painting's long side over the render's
+MAX_STYLE_SCALE = 16.0
+LAMBDA_TV = 40.0
+LR_FINAL = 0.1  # the rate decays exponentially to a tenth by the last iteration
+DC_ONLY = True
 
 LOSSES = ("ccft", "nnfm", "gram")
 # Style weight per loss. NNFM's loss is also a mean cosine distance per rendered feature, on the same scale as
@@ -39,9 +62,10 @@ STANDARD_MAX_SIDE = 512
 # paper: 3DGS trains on images whose long side is at most 1600 pixels; we render at that resolution too.
 PAPER_MAX_SIDE = 1600
 
-# Adam on the SH DC term: the colour moves by about SH_C0 * lr per step. On fern (quick preset) 0.05 left speckle
-# and over-strong texture (raw Gram distance to the painting 0.73 of the start) where 0.02 gave 0.46.
-LR = 0.02
+# Adam on the SH DC term: the colour moves by about SH_C0 * lr per step. With the old weak content term 0.02 was
+# chosen against speckle (fern, quick preset); with the balanced content term, TV and the decay to a tenth, 0.13
+# reaches the painting's palette within the quick preset's few hundred steps (fox sweep: 0.08-0.15 tried).
+LR = 0.13
 SHN_LR_FACTOR = 1.0 / 20.0  # 3DGS: the higher SH orders learn 20x slower than the DC term
 
 VIEW_ORDERS = ("dataset", "nearest", "random")

@@ -39,7 +39,7 @@ def choose_downscale(data: Path, max_side: int) -> int:
 def stylize_to_folder(model: Path, data: Path, style: Path, out: Path, config: StylizeConfig,
                       vgg_weights: str | None = None, listener=None, log=None, mask=None,
                       metrics: Callable[[Stylizer], dict[str, Any]] | None = None, resume: bool = False,
-                      force: bool = False, warn: Callable[[str], None] | None = None,
+                      force: bool = False, overwrite: bool = False, warn: Callable[[str], None] | None = None,
                       report_extra: Callable[[], dict[str, Any]] | None = None) -> dict[str, Any]:
     """Run the job and return the report (also written to OUT/report.json). ``listener`` receives the stylizer's
     events (training/core/messages.py); ``log`` (a str -> None callable) gets one line describing the run, and
@@ -52,9 +52,10 @@ def stylize_to_folder(model: Path, data: Path, style: Path, out: Path, config: S
     OUT/point_cloud.ply and OUT/stylize_checkpoint.pt before it goes on up; once the iterations and the post
     colour transfer are done, both are saved before the metrics and renders. ``resume`` continues from that
     checkpoint (InputsChanged, exit 2, when it was made from other inputs, unless ``force``: then afresh); the
-    checkpoint is removed once the report is written."""
+    checkpoint is removed once the report is written, so one found without ``resume`` is an interrupted run's:
+    InputError unless ``overwrite`` (a fresh run would replace it at its first save)."""
     from training.core.atomic_write import atomic_open, check_output_dir, make_output_dir
-    from training.scene.fingerprint import InputsChanged, check_same_inputs
+    from training.scene.fingerprint import state_to_resume
     from training.scene.image_io import write_image
     from training.model.model_io import read_model
     from training.model.ply_io import write_ply
@@ -73,22 +74,17 @@ def stylize_to_folder(model: Path, data: Path, style: Path, out: Path, config: S
     if out.exists() and not out.is_dir():
         raise InputError(out, "output exists and is not a folder")
     check_output_dir(out)
+    ckpt_path = out / CHECKPOINT_NAME
+    if not resume and not overwrite and ckpt_path.is_file():
+        raise InputError(ckpt_path, "holds an interrupted stylization's checkpoint: continue it with --resume, or "
+                                    "start afresh with --overwrite (which replaces it)")
     style_image = load_style_image(style)  # first: a bad painting should not cost a scene load
     gaussians = read_model(model)
-    ckpt_path = out / CHECKPOINT_NAME
     fingerprint = stylize_fingerprint(model, data, style, config, mask)
     state = None
     if resume:
-        state = load_stylize_checkpoint(ckpt_path)
-        try:
-            warning = check_same_inputs(state.get("fingerprint"), fingerprint, ckpt_path)
-        except InputsChanged as exc:
-            if not force:
-                raise
-            say(f"stylize: {ckpt_path}: made from other inputs ({exc.difference}): starting afresh (--force)")
-            state, warning = None, None
-        if warning:
-            warn(warning)
+        state = state_to_resume(load_stylize_checkpoint(ckpt_path), fingerprint, ckpt_path, force,
+                                lambda line: say(f"stylize: {line}"), warn)
     scene = load_scene(data, downscale=choose_downscale(data, config.render_max_side))
     t_loaded = time.perf_counter()
 
@@ -201,6 +197,8 @@ def stylize_to_folder(model: Path, data: Path, style: Path, out: Path, config: S
             **{f"{k}_ratio_end_to_start": distance_end[k] / v if v > 0 else None for k, v in distance_start.items()},
         },
         "utilisation": utilisation,
+        # ||content gradient|| / ||style gradient|| on the render over the run (objective.py)
+        "gradient_balance": gradient_balance(stylizer.history),
         # each step's plan against the previous step's, where it saw another view (Stylizer.step_agreement)
         "step_match_agreement": stylizer.step_agreement(),
         "metrics": measured,
@@ -224,6 +222,19 @@ def stylize_to_folder(model: Path, data: Path, style: Path, out: Path, config: S
         f.write("\n")
     ckpt_path.unlink(missing_ok=True)  # the run is whole: nothing left to resume, and checkpoints are large
     return report
+
+
+def gradient_balance(history: list[dict]) -> dict[str, Any] | None:
+    """The content-to-style gradient ratio on the render (training/stylize/objective.py) over the steps that measured
+    it: first, last, median, and the mean of each norm; None where no step did."""
+    rows = [h for h in history if h.get("grad_style") and h.get("grad_content") is not None]
+    if not rows:
+        return None
+    ratios = [h["grad_content"] / h["grad_style"] for h in rows]
+    return {"content_to_style_first": ratios[0], "content_to_style_last": ratios[-1],
+            "content_to_style_median": float(np.median(ratios)),
+            "grad_style_mean": float(np.mean([h["grad_style"] for h in rows])),
+            "grad_content_mean": float(np.mean([h["grad_content"] for h in rows])), "steps": len(rows)}
 
 
 def before_after_sheet(stylizer: Stylizer, renders: list, style_image: np.ndarray) -> np.ndarray:

@@ -27,14 +27,7 @@ def check_model_matches_scene(gaussians: Gaussians, cameras: list[Camera], model
         raise InputError(model_name, "the model holds no Gaussians")
     inside = np.zeros(len(means), dtype=bool)
     for cam in cameras:
-        R = cam.world_to_camera[:3, :3]
-        t = cam.world_to_camera[:3, 3]
-        pc = means @ R.T + t
-        z = pc[:, 2]
-        front = z > near
-        zs = np.where(front, z, 1.0)
-        u = cam.fx * pc[:, 0] / zs + cam.cx
-        v = cam.fy * pc[:, 1] / zs + cam.cy
+        (u, v), front = (a.T for a in cam.project(means, near))
         mx, my = 0.1 * cam.width, 0.1 * cam.height  # a small margin: splats just outside still reach the image
         inside |= front & (u > -mx) & (u < cam.width + mx) & (v > -my) & (v < cam.height + my)
     fraction = float(inside.mean())

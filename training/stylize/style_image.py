@@ -79,6 +79,12 @@ def load_style_image(path: str | Path) -> np.ndarray:
     return check_style_array(image, path)
 
 
+def painting_side(render_long_side: int, style_scale: float) -> int:
+    """The painting's long side for a render's: ``style_scale`` times it (neural-style's ``-style_scale``; 1 is
+    ARF's and the paper's, the painting as large as the render)."""
+    return max(1, int(round(render_long_side * style_scale)))
+
+
 def style_for_render(style: np.ndarray, render_long_side: int) -> torch.Tensor:
     """(1, 3, h, w) style image whose long side equals ``render_long_side`` (area-averaged when shrinking)."""
     t = torch.from_numpy(np.ascontiguousarray(style, dtype=np.float32)).permute(2, 0, 1)[None]

@@ -38,7 +38,6 @@ from typing import Any
 
 import numpy as np
 import torch
-import torch.nn.functional as F
 
 from training.stylize.color_transfer import (ColorTransform, apply_to_gaussians, apply_to_image, fit_color_transfer,
                                      foreground_pixels)
@@ -49,9 +48,10 @@ from training.model.gaussians import Gaussians
 from training.raster.rasterize import resolve_device
 from training.scene.correspondence import MIN_CELLS, cell_correspondence, label_agreement
 from training.scene.scene import Camera, Scene, over_background
+from training.stylize.objective import content_loss, render_gradients, total_variation
 from training.stylize.region import (as_mask, blend_content, coverage_from_render, covered_pixels, indicator_sh,
                                      keep_unselected, masked_step)
-from training.stylize.style_image import check_style_array, halve, style_for_render
+from training.stylize.style_image import check_style_array, halve, painting_side, style_for_render
 from training.stylize.defaults import MEANS_LR, OPACITY_LR, QUATS_LR, SCALES_LR, SHN_LR_FACTOR
 from training.stylize.config import (DEFAULT_LAMBDA_STYLE, DEFAULT_LR, StylizeConfig,  # noqa: F401  (re-exported)
                                      paper_schedule, render_camera, schedule)
@@ -62,7 +62,7 @@ from training.stylize.virtual_views import ViewItem, trajectory
 # Settings that shape the run when the Stylizer is built (the cameras, the trajectory, the colour transfer, the
 # device, which parameters the optimiser holds): update_config refuses them rather than ignore them.
 FIXED_AT_START = ("view_order", "virtual_views", "preset", "device", "color_transfer", "background", "scene_kind",
-                  "max_side", "seed", "params", "schedule")
+                  "max_side", "seed", "params", "schedule", "content_source")
 GEOMETRY = ("means", "log_scales", "quats", "opacity_logits")
 # The content features of the views, kept so that a new view at every iteration costs no VGG pass of its photo:
 # about 2.4 MB a view at 256 px, 40-60 MB at 1600 px. Beyond this the least recently used view is dropped and
@@ -301,8 +301,9 @@ class Stylizer(LiveTrainer):
         return self.vgg(halve(x))
 
     def style_features(self, camera: Camera) -> torch.Tensor:
-        """(1, 768, h, w) features of the painting resized so its long side equals the render's, then halved."""
-        side = max(camera.width, camera.height)
+        """(1, 768, h, w) features of the painting resized so its long side is ``style_scale`` times the render's,
+        then halved."""
+        side = painting_side(max(camera.width, camera.height), self.config.style_scale)
         if side not in self._style_cache:
             with torch.no_grad():
                 style = style_for_render(self.style_image, side).to(self.device)
@@ -317,7 +318,7 @@ class Stylizer(LiveTrainer):
             return cache[self._position]
         view = self.current_view
         with torch.no_grad():
-            if view.is_virtual:
+            if view.is_virtual or self.config.content_source == "render":
                 content, _ = self.render(view.camera, sh=self._initial_sh, input_geometry=True)
                 content = content.clamp(0, 1)
             else:
@@ -349,7 +350,14 @@ class Stylizer(LiveTrainer):
                 self._make_optimizer()
         for group in self._optimizer.param_groups:
             if group["lr_scale"] is not None:  # the geometry's rates (params="all") are fixed
-                group["lr"] = cfg.learning_rate * group["lr_scale"]
+                group["lr"] = self._lr_now() * group["lr_scale"]
+
+    def _lr_now(self) -> float:
+        """The colours' learning rate at this iteration: ``lr`` decayed exponentially to ``lr * lr_final`` at the
+        last iteration of the schedule (constant with lr_final 1)."""
+        cfg = self.config
+        progress = min(1.0, self.iteration / max(1, self.total_iters - 1))
+        return cfg.learning_rate * cfg.lr_final ** progress
 
     def _make_optimizer(self) -> None:
         g = self.gaussians
@@ -378,8 +386,11 @@ class Stylizer(LiveTrainer):
         sync = (lambda: torch.cuda.synchronize()) if self.device.type == "cuda" else (lambda: None)
 
         t = time.perf_counter()
-        image, alpha = self.render(view.camera, render_mode="RGB+ED")  # the depth: for the step's match agreement
-        image, depth = image[..., :3], image[..., 3:].detach()
+        rendered, alpha = self.render(view.camera, render_mode="RGB+ED")  # the depth: for the step's agreement
+        rendered, depth = rendered[..., :3], rendered[..., 3:].detach()
+        # the objective's gradient on the render is taken first (its terms apart, for the balance), then pushed
+        # through the rasterizer: two timed backward stages
+        image = rendered.detach().requires_grad_(True)
         sync()
         timings["rasterize"] = time.perf_counter() - t
 
@@ -396,8 +407,11 @@ class Stylizer(LiveTrainer):
         if last is not None and getattr(last, "column_mass", None) is not None:
             # swapped in whole: a reader on another thread sees the previous map or this one
             self._capacity = last.column_mass.detach().to("cpu", torch.float32).numpy().reshape(style.shape[2:])
-        content_loss = F.mse_loss(feats, content)
-        loss = cfg.style_weight * style_loss + cfg.lambda_content * content_loss
+        content_term = content_loss(feats, content, cfg.content_norm)
+        terms = {"style": cfg.style_weight * style_loss, "content": cfg.lambda_content * content_term}
+        if cfg.lambda_tv > 0:
+            terms["tv"] = cfg.lambda_tv * total_variation(image)
+        loss = sum(terms.values())
         sync()
         timings["loss"] = time.perf_counter() - t
         t = time.perf_counter()
@@ -408,10 +422,14 @@ class Stylizer(LiveTrainer):
                 timings[key[:-2]] = float(value)
 
         t = time.perf_counter()
-        self._optimizer.zero_grad(set_to_none=True)
-        loss.backward()
+        grads = render_gradients(image, terms, cfg.measure_balance)
         sync()
-        timings["backward"] = time.perf_counter() - t
+        timings["vgg_backward"] = time.perf_counter() - t
+        t = time.perf_counter()
+        self._optimizer.zero_grad(set_to_none=True)
+        rendered.backward(grads.total)
+        sync()
+        timings["raster_backward"] = time.perf_counter() - t
 
         t = time.perf_counter()
         with self._model_lock:
@@ -428,7 +446,10 @@ class Stylizer(LiveTrainer):
             "iteration": self.iteration,
             "loss": float(loss.detach()),
             "style_loss": float(style_loss.detach()),
-            "content_loss": float(content_loss.detach()),
+            "content_loss": float(content_term.detach()),
+            # the norms of the style and content terms' gradients on the render (None: not measured)
+            "grad_style": grads.style_norm, "grad_content": grads.content_norm,
+            "content_to_style": grads.content_to_style,
             "view": view.camera.name,
             "view_index": view.source_index,
             "trajectory_position": self._position,
@@ -443,12 +464,14 @@ class Stylizer(LiveTrainer):
             "timings": timings,
             # the settings this step used: a live change shows in the first step that applied it
             "tau": cfg.tau, "k": cfg.k, "epsilon": cfg.epsilon, "lambda_guide": cfg.lambda_guide,
-            "lambda_style": cfg.style_weight, "lambda_content": cfg.lambda_content, "lr": cfg.learning_rate,
+            "lambda_style": cfg.style_weight, "lambda_content": cfg.lambda_content, "lr": self._lr_now(),
+            "style_scale": cfg.style_scale,
         }
         result.update({k: _plain(v) for k, v in stats.items()
                        if k not in ("loss",) and not k.endswith("_s") and _is_scalar(v)})
         self.last_stats = result
-        self.history.append({k: result[k] for k in ("iteration", "loss", "style_loss", "content_loss")})
+        self.history.append({k: result[k] for k in ("iteration", "loss", "style_loss", "content_loss", "grad_style",
+                                                    "grad_content")})
 
         self.iteration += 1
         self._iters_on_view += 1

@@ -1,0 +1,84 @@
+"""The stylization objective on one render: the style term, the content term and a total-variation term, and the
+balance of their gradients on the render.
+
+Content term. The paper writes L_content = (1/N) sum_i ||x_i - x^_i||^2 over the N feature positions and sets
+lambda_content = 0.005 beside lambda_CCFT = 30; the 0.005 is ARF's, whose code takes the mean over channels *and*
+positions (``torch.nn.functional.mse_loss``) with a style weight of 1. Neither unit is comparable to CCFT's, a mean
+of cosine distances (scale-free): the MSE's gradient on a render grows with the square of VGG's activation scale and,
+as a mean over channels, shrinks with their number. ``content_norm`` picks the unit:
+
+- ``relative`` (the default): ||X - X^||^2 / ||X^||^2 over every channel and position, the squared error relative to
+  the content features' own energy. Dimensionless: independent of the channel count, the image size and the
+  activation scale, so one weight means the same balance at every preset and resolution.
+- ``mse``: the mean over channels and positions (ARF's code, the paper's 0.005 as printed): for the paper's grid.
+
+One ``relative`` unit equals (mean square of the content features) ``mse`` units: on the fox and the fern at 256 px
+that is 1/700 to 1/900 (docs/stylization.md, "The content balance").
+
+The total-variation term is the mean squared difference of neighbouring pixels of the render, the smoothness prior
+ARF's grids carry; 0 leaves it out.
+
+Gradient balance: with ``measure_balance`` the style and content terms' gradients on the render are taken apart
+(one more VGG backward pass: about a tenth of a quick step, docs/stylization.md) and their norms reported, so that a
+user sees which term steers the colours.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import torch
+
+from training.stylize.defaults import CONTENT_NORMS  # noqa: F401  (the names content_loss takes)
+
+
+def content_loss(feats: torch.Tensor, content: torch.Tensor, norm: str) -> torch.Tensor:
+    """The content term between rendered and content features (1, C, h, w), in ``norm``'s unit (module doc)."""
+    diff = (feats - content).pow(2)
+    if norm == "mse":
+        return diff.mean()
+    return diff.sum() / content.pow(2).sum().clamp_min(1e-12)
+
+
+def total_variation(image: torch.Tensor) -> torch.Tensor:
+    """Mean squared difference between horizontally and vertically neighbouring pixels of an (H, W, 3) image."""
+    dy = (image[1:] - image[:-1]).pow(2).mean()
+    dx = (image[:, 1:] - image[:, :-1]).pow(2).mean()
+    return dx + dy
+
+
+@dataclass
+class Gradients:
+    """The gradient of the whole objective on the render, and, where measured, the norms of its terms' parts."""
+
+    total: torch.Tensor  # (H, W, 3), d loss / d render
+    style_norm: float | None = None
+    content_norm: float | None = None
+    tv_norm: float | None = None
+
+    @property
+    def content_to_style(self) -> float | None:
+        """||content gradient|| / ||style gradient|| on the render (None where not measured)."""
+        if self.style_norm is None or self.content_norm is None or self.style_norm <= 0:
+            return None
+        return self.content_norm / self.style_norm
+
+
+def render_gradients(render: torch.Tensor, terms: dict[str, torch.Tensor], measure_balance: bool) -> Gradients:
+    """d(sum of ``terms``)/d ``render`` (a leaf the terms were computed from), with the terms' norms taken apart
+    when ``measure_balance``. ``terms``: "style", "content" and optionally "tv", each already weighted."""
+    loss = sum(terms.values())
+    if not measure_balance:
+        (total,) = torch.autograd.grad(loss, render)
+        return Gradients(total)
+    norms: dict[str, float] = {}
+    total = torch.zeros_like(render)
+    names = list(terms)
+    for i, name in enumerate(names):
+        if not terms[name].requires_grad:
+            norms[name] = 0.0
+            continue
+        (g,) = torch.autograd.grad(terms[name], render, retain_graph=i < len(names) - 1)
+        norms[name] = float(g.norm())
+        total += g
+    return Gradients(total, norms.get("style"), norms.get("content"), norms.get("tv"))
