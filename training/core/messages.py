@@ -18,8 +18,8 @@ from typing import Any, Callable, Literal
 
 import numpy as np
 
-EventKind = Literal["step", "structure", "view", "finished", "warning"]
-EVENT_KINDS: tuple[str, ...] = ("step", "structure", "view", "finished", "warning")
+EventKind = Literal["step", "structure", "view", "finished", "warning", "info"]
+EVENT_KINDS: tuple[str, ...] = ("step", "structure", "view", "finished", "warning", "info")
 
 
 @dataclass(frozen=True)
@@ -29,8 +29,10 @@ class TrainerEvent:
     kind: "step" (``metrics`` holds the step's scalar metrics), "structure" (the number or geometry of the Gaussians
     changed: densification, pruning, a NaN restore, an edit; ``metrics["num_gaussians"]``), "view" (a stylizer moved
     to another view of its trajectory; ``metrics["trajectory_position"]``), "finished" (the schedule is done),
-    "warning" (``message`` says what, in one line). ``step`` is the trainer's step count when it happened; ``stage``
-    names the trainer ("reconstruct" or "stylize")."""
+    "warning" (``message`` says what, in one line), "info" (a line for the user that is no warning: what the console
+    prints). ``step`` is the trainer's step count when it happened; ``stage`` names the trainer ("reconstruct",
+    "stylize", or "sfm": structure from motion, whose work is no series of steps, so its "step" events count the
+    units of its current phase, ``metrics["total_iters"]`` of them, and say the phase in ``message``)."""
 
     kind: EventKind
     stage: str
