@@ -273,12 +273,16 @@ def close_views_scene(num_views: int, width: int, height: int, arc_degrees: floa
 
 @pytest.mark.slow
 def test_stylization_moves_renders_toward_the_painting(vgg):
-    """A short run on the demo scene with a real painting: the Gram distance to it falls by at least half."""
+    """A short run on the demo scene with a real painting, the style term nearly alone (the paper's content weight in
+    ARF's unit, the painting at the render's size): the Gram distance to it falls by at least half. At the defaults
+    the content term holds this 128 px scene's colours (Gram 22.5 -> 24.8 at twice the render's size, the style loss
+    0.58 -> 0.52); tests/test_stylize_keeps_scene.py measures the defaults on the real fox."""
     path = SHARED / "data" / "styles" / "starry_night.jpg"
     if not path.exists():
         pytest.skip(f"paintings not available: {path}")
     scene, g = close_views_scene(4, 128, 96, 20.0, 4000)
-    cfg = StylizeConfig(preset="quick", max_side=128, iters_per_view=40, min_total_iters=0)
+    cfg = StylizeConfig(preset="quick", max_side=128, iters_per_view=40, min_total_iters=0, content_norm="mse",
+                        lambda_content=0.005, style_scale=1.0)
     s = Stylizer(g, scene, load_style_image(path), cfg, vgg=vgg)
     start = style_distance(s, sh=s.original_sh)
     s.run()
