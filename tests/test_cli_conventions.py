@@ -130,3 +130,43 @@ def test_stylize_no_progress_still_says_its_estimate_and_reports_it(tmp_path, ca
     assert report["splatstyler_version"] == version("splatstyler")
     est = report["time_estimate"]
     assert est["first_estimate_at_iteration"] == 10 and est["first_estimate_s"] > 0 and est["actual_s"] > 0
+
+
+@pytest.mark.slow
+def test_stylize_offline_without_the_lpips_weights_keeps_its_outputs(tmp_path):
+    """A machine without network or cache for LPIPS (the GPU lease's; it ended a 1,340-step run with an error after
+    the loop): the stylization's model, renders and report are written, the measures that need the weights are
+    None and one warning says why."""
+    import os
+    import subprocess
+    import sys
+
+    import numpy as np
+
+    import training.stylize.vgg_weights as vw
+    from assets.demo.scene import make_demo_scene, write_demo_scene
+    from training.core.cache_dir import cache_dir
+    from training.model.gaussian_init import gaussians_from_points
+    from training.model.ply_io import write_ply
+    from training.scene.image_io import write_image
+
+    vw.resolve_vgg_weights(log=lambda s: None)  # the stylizer's own weights come from a file, as --vgg-weights
+    weights = cache_dir("weights") / vw.CONVERTED_NAME
+    demo = make_demo_scene(num_views=4, width=64, height=48, num_points=800, supersample=1)
+    data = write_demo_scene(tmp_path / "scene", demo)
+    write_ply(tmp_path / "model.ply", gaussians_from_points(demo.points, demo.point_colors, sh_degree=1))
+    yy, xx = np.mgrid[0:96, 0:96] / 96.0
+    write_image(tmp_path / "style.png", np.stack([np.sin(9 * xx) * 0.5 + 0.5, yy, 0.5 + 0 * xx], -1))
+    env = dict(os.environ, SPLATSTYLER_CACHE=str(tmp_path / "empty_cache"), SPLATSTYLER_VGG_WEIGHTS=str(weights),
+               PIP_INDEX_URL="http://127.0.0.1:9/simple", PIP_RETRIES="0", PIP_NO_CACHE_DIR="1")
+    proc = subprocess.run([sys.executable, "-m", "app", "stylize", str(tmp_path / "model.ply"), "--data", str(data),
+                           "--style", str(tmp_path / "style.png"), "-o", str(tmp_path / "out"), "--preset", "quick",
+                           "--max-side", "64", "--iters-per-view", "2", "--no-progress"],
+                          env=env, capture_output=True, text=True, timeout=600)
+    assert proc.returncode == 0, proc.stderr[-2000:]
+    assert "LPIPS and the VGG measures (style distances, structure distance) skipped" in proc.stderr
+    report = json.loads((tmp_path / "out" / "report.json").read_text())
+    metrics = report["metrics"]
+    assert metrics["structure_distance"] is None and metrics["consistency_short_lpips"] is None
+    assert metrics["consistency_short_rmse"] is not None and metrics["luminance_psnr"] > 0
+    assert (tmp_path / "out" / "point_cloud.ply").is_file() and any((tmp_path / "out" / "renders").iterdir())

@@ -102,6 +102,6 @@ def test_guidance_raises_the_match_agreement_between_neighbouring_views(vgg):
                                                         iters_per_view=2, seed=0), vgg=vgg)
         assert s.config.schedule == "interleaved"
         s.run()
-        agreement[guide] = s.step_agreement()
+        agreement[guide] = s.agreement.mean()
         print(f"lambda_guide {guide:g}: step match agreement {agreement[guide]:.4f}")
     assert agreement[1.0] > agreement[0.0] + 0.02

@@ -314,8 +314,8 @@ def test_sfm_interrupted_while_moving_into_place_leaves_nothing(tmp_path, monkey
 
     import pycolmap
 
-    monkeypatch.setattr(pycolmap, "extract_features", lambda db, *a, **k: Path(db).write_bytes(b""))
-    monkeypatch.setattr(pycolmap, "match_exhaustive", lambda db: None)
+    monkeypatch.setattr(sfm, "_extract_features", lambda db, *a, **k: Path(db).write_bytes(b""))
+    monkeypatch.setattr(sfm, "_match_pairs", lambda *a: None)
     monkeypatch.setattr(pycolmap, "undistort_images", undistort)
     monkeypatch.setattr(sfm, "photos_without_overlap", lambda db, names: [])
     monkeypatch.setattr(sfm, "_map_with_retries", lambda *a: (Model(), "mapping settings that worked: test"))

@@ -122,7 +122,7 @@ def test_photos_are_staged_upright_and_shrunk(tmp_path):
     write_image(tmp_path / "big.png", rng.random((60, 90, 3)))
     write_image(tmp_path / "small.png", rng.random((30, 45, 3)))
     staged = tmp_path / "staged"
-    _stage_photos(sorted(tmp_path.glob("*.*")), staged, 50, log=lambda s: None, progress=False)
+    _stage_photos(sorted(tmp_path.glob("*.*")), staged, 50, log=lambda s: None)
     upright = read_image(staged / "phone.jpg")
     assert upright.shape == (40, 20, 3)  # the pixels themselves are upright now: COLMAP and we agree
     assert np.abs(upright - read_image(tmp_path / "phone.jpg")).mean() < 0.05

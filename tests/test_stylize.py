@@ -14,6 +14,7 @@ from training.core.errors import InputError
 from training.model.gaussian_init import gaussians_from_points
 from training.scene.scene import Scene
 from training.stylize.style_image import MIN_STYLE_SIDE, check_style_array, load_style_image
+from training.stylize.style_distance import style_distance
 from training.stylize.trainer import (StylizeConfig, Stylizer, check_model_matches_scene, paper_schedule, schedule)
 
 SHARED = Path(__file__).resolve().parents[1].parent / "shared"
@@ -118,10 +119,10 @@ def test_block_schedule_stays_on_a_view_for_iters_per_view(tiny, vgg):
     assert positions == [0, 0, 1, 1, 2, 2]
     assert s.trajectory[1].is_virtual and s.trajectory[2].source_index == 1
     # The content of a virtual view is the model rendered before stylization, not the current colours.
-    assert s._position == 3 and s.trajectory[3].is_virtual
+    assert s.trajectory_position == 3 and s.trajectory[3].is_virtual
     content = s.content_features()
     with torch.no_grad():
-        expected = s.features(s.render(s.trajectory[3].camera, sh=s._initial_sh)[0].clamp(0, 1))
+        expected = s.features(s.render(s.trajectory[3].camera, sh=s.model.initial_sh)[0].clamp(0, 1))
         current = s.features(s.render(s.trajectory[3].camera)[0].clamp(0, 1))
     assert torch.allclose(content, expected) and not torch.allclose(content, current)
 
@@ -141,7 +142,7 @@ def test_interleaved_schedule_takes_a_new_view_every_step(tiny, vgg):
     assert np.bincount(positions).tolist() == [3] * n
     assert [r["pass"] for r in results] == [t // n + 1 for t in range(3 * n)] and s.done
     # every view's content features are kept: the second pass computes none again
-    assert sorted(s._content_cache) == list(range(n))
+    assert sorted(s.feature_cache.content) == list(range(n))
 
 
 def guided_by_the_previous_view(results: list[dict]) -> bool:
@@ -172,10 +173,10 @@ def test_config_changes_take_effect_on_the_next_step(tiny, vgg):
         s = make(tiny, vgg, iters_per_view=5, color_transfer=False)
         s.step()
         s.config.tau = tau
-        s.config.lr = 0.02
+        s.config.lr, s.config.lr_final = 0.02, 1.0  # a constant rate: the groups' rates are 0.02 times their scale
         r = s.step()
-        assert s.style_loss.tau == tau
-        assert all(group["lr"] == pytest.approx(0.02 * group["lr_scale"]) for group in s._optimizer.param_groups)
+        assert r["tau"] == tau
+        assert all(group["lr"] == pytest.approx(0.02 * group["lr_scale"]) for group in s.optimizer.param_groups)
         runs.append(r)
     # A stronger capacity constraint spreads the plan over more style features: higher column entropy.
     assert runs[1]["column_entropy"] > runs[0]["column_entropy"]
@@ -272,17 +273,21 @@ def close_views_scene(num_views: int, width: int, height: int, arc_degrees: floa
 
 @pytest.mark.slow
 def test_stylization_moves_renders_toward_the_painting(vgg):
-    """A short run on the demo scene with a real painting: the Gram distance to it falls by at least half."""
+    """A short run on the demo scene with a real painting, the style term nearly alone (the paper's content weight in
+    ARF's unit, the painting at the render's size): the Gram distance to it falls by at least half. At the defaults
+    the content term holds this 128 px scene's colours (Gram 22.5 -> 24.8 at twice the render's size, the style loss
+    0.58 -> 0.52); tests/test_stylize_keeps_scene.py measures the defaults on the real fox."""
     path = SHARED / "data" / "styles" / "starry_night.jpg"
     if not path.exists():
         pytest.skip(f"paintings not available: {path}")
     scene, g = close_views_scene(4, 128, 96, 20.0, 4000)
-    cfg = StylizeConfig(preset="quick", max_side=128, iters_per_view=40, min_total_iters=0)
+    cfg = StylizeConfig(preset="quick", max_side=128, iters_per_view=40, min_total_iters=0, content_norm="mse",
+                        lambda_content=0.005, style_scale=1.0)
     s = Stylizer(g, scene, load_style_image(path), cfg, vgg=vgg)
-    start = s.style_distance(sh=s.original_sh)
+    start = style_distance(s, sh=s.original_sh)
     s.run()
     s.finish()
-    end = s.style_distance()
+    end = style_distance(s)
     assert s.iteration == 160
     assert s.history[-1]["style_loss"] < 0.8 * s.history[0]["style_loss"]
     assert end["gram"] <= 0.5 * start["gram"], (start, end)
@@ -376,7 +381,7 @@ def test_each_step_measures_its_plans_agreement_with_the_previous_view(tiny, vgg
     values = [s.step()["match_agreement"] for _ in range(12)]
     measured = [v for v in values if v is not None]
     assert values[0] is None and len(measured) >= 8 and all(0.0 <= v <= 1.0 for v in measured)
-    assert s.step_agreement() == pytest.approx(np.mean(measured))
+    assert s.agreement.mean() == pytest.approx(np.mean(measured))
     b = make(tiny, vgg, iters_per_view=3, view_order="dataset", color_transfer=False, virtual_views=2,
              schedule="block")
     results = [b.step() for _ in range(12)]

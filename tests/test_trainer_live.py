@@ -15,6 +15,7 @@ from training.model.gaussian_init import gaussians_from_points
 from training.reconstruct.densify import DensifyConfig
 from training.reconstruct.trainer import ReconstructConfig, Reconstructor
 from training.scene.scene import Scene
+from training.stylize.style_distance import style_distance
 from training.stylize.trainer import StylizeConfig, Stylizer
 
 
@@ -156,13 +157,14 @@ def test_stylize_update_config_reaches_the_next_plan(tiny, vgg, monkeypatch):
     used: list[float] = []
     import training.stylize.ccft as ccft
 
-    real = ccft.semi_balanced_sinkhorn  # (cost, indices, reachable, tau, ...): the plan's tau
-    monkeypatch.setattr(ccft, "semi_balanced_sinkhorn", lambda *a, **kw: (used.append(a[3]), real(*a, **kw))[1])
+    real = ccft.semi_balanced_sinkhorn  # (cost, indices, reachable, tau, ...): the plan's tau, and its k columns
+    monkeypatch.setattr(ccft, "semi_balanced_sinkhorn",
+                        lambda *a, **kw: (used.append((a[3], a[1].shape[1])), real(*a, **kw))[1])
     done = threading.Event()
     threading.Thread(target=lambda: (s.update_config(tau=0.01, k=4), done.set())).start()
     assert done.wait(10)
     s.step()
-    assert used == [0.01] and s.style_loss.k == 4 and s.config.tau == 0.01
+    assert used == [(0.01, 4)] and s.config.tau == 0.01
 
 
 def test_stylize_fixed_settings_are_refused_with_a_reason(tiny, vgg):
@@ -204,7 +206,7 @@ def test_stylize_events_and_cancelled_finish(tiny, vgg):
         s.finish(cancel=lambda: calls.append(1) or len(calls) > 2)  # cancelled after two views
     assert torch.equal(s.gaussians.sh, before) and not s.finished
     with pytest.raises(Cancelled):
-        s.style_distance(cancel=lambda: True)
+        style_distance(s, cancel=lambda: True)
 
 
 def test_stylize_keep_removes_gaussians_between_steps(tiny, vgg):

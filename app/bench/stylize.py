@@ -87,7 +87,7 @@ def _train_geometry(stylizer) -> list:
     carries the gradients to these tensors, as a reconstruction step would); returns those tensors."""
     g = stylizer.gaussians
     try:
-        tensors = [g.means, g.quats, stylizer._scales, stylizer._opacities]
+        tensors = [g.means, g.quats, stylizer.model.scales, stylizer.model.opacities]
     except AttributeError as exc:  # the trainer keeps its render-ready geometry under these names
         raise RuntimeError(f"bench stylize: the Stylizer's geometry is not where the benchmark expects it ({exc})")
     for t in tensors:

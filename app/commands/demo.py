@@ -18,6 +18,7 @@ import argparse
 from pathlib import Path
 
 from app.commands import add_run_flags
+from app.stage_outputs import StageOutputs, tell
 
 CONTACT_SHEET = "contact_sheet.png"
 
@@ -146,55 +147,25 @@ def _in_viewer(args, data: Path, style: Path, out: Path, generated_scene: bool) 
     return 0
 
 
-class WindowOutputs:
-    """What the headless demo writes, written by the demo's window as each stage ends (Stage.outputs, on the
-    viewer's training thread, the window live meanwhile): the reconstruction's report.json, renders and contact
-    sheet, made by ``reconstruct --resume`` from the checkpoint the stage saved at its end (no step is taken); the
-    stylization's renders, report.json (its metrics) and before/after sheet, made by the stylize pipeline from a
-    checkpoint of the finished stylizer, with the settings it ended with (the sliders may have moved them); the
-    .splat; and OUT/contact_sheet.png. Each line is said in the window and printed in the console."""
+class WindowOutputs(StageOutputs):
+    """What the headless demo writes, written by the demo's window as each stage ends: what the console's
+    reconstruct and stylize write (StageOutputs), and after the stylization the .splat and OUT/contact_sheet.png."""
 
     def __init__(self, data: Path, style: Path, out: Path):
-        self.data, self.style, self.out = data, style, out
+        super().__init__(data, style, out)
         self.sheet_of: Path | None = None  # the stylized model the contact sheet was last made of
-
-    def reconstruction(self, trainer, ply, say) -> None:
-        from app.commands import reconstruct_in_console
-
-        folder = Path(ply).parent
-        _tell(say, f"writing {folder / 'report.json'}, renders and contact sheet (as `splatstyler reconstruct`)")
-        reconstruct_in_console(self.data, folder, None, no_progress=True, resume=True)
-        _tell(say, f"wrote {folder / 'report.json'}, {folder / 'renders'}, {folder / 'contact_sheet.png'}")
 
     def stylization(self, trainer, ply, say) -> None:
         from app.demo_sheet import demo_contact_sheet
-        from app.settings.stylize import METRIC_PAIRS
-        from training.evaluate.measure import Measure, summary_line
-        from training.stylize.checkpoint import CHECKPOINT_NAME, save_stylize_checkpoint, stylize_fingerprint
-        from training.stylize.pipeline import stylize_to_folder
 
+        super().stylization(trainer, ply, say)
         ply = Path(ply)
-        folder, model = ply.parent, Path(trainer.model_name)
-        _tell(say, f"measuring and rendering every view for {folder / 'report.json'} (as `splatstyler stylize`)")
-        steps = sum(s for name, s in trainer.times.totals.items() if name.startswith("stylize/"))
-        save_stylize_checkpoint(folder / CHECKPOINT_NAME, trainer, stylize_fingerprint(
-            model, self.data, self.style, trainer.config, trainer.mask), {"stylize_seconds": steps})
-        report = stylize_to_folder(model, self.data, self.style, folder, trainer.config, mask=trainer.mask,
-                                   metrics=Measure(METRIC_PAIRS), resume=True, log=print)
-        _tell(say, f"wrote {folder / 'report.json'}, {len(report['renders'])} renders in {folder / 'renders'}, "
-                   f"{folder / report['contact_sheet']}")
-        if report.get("metrics"):
-            _tell(say, summary_line(report["metrics"]))
+        folder = ply.parent
         export_splat(ply, folder / "scene.splat")
-        _tell(say, f"wrote {folder / 'scene.splat'}")
-        sheet = demo_contact_sheet(self.data, model, ply, self.style, self.out / CONTACT_SHEET)
+        tell(say, f"wrote {folder / 'scene.splat'}")
+        sheet = demo_contact_sheet(self.data, Path(trainer.model_name), ply, self.style, self.out / CONTACT_SHEET)
         self.sheet_of = ply
-        _tell(say, f"contact sheet (photo, reconstruction, stylized, painting): {sheet}")
-
-
-def _tell(say, line: str) -> None:
-    print(line, flush=True)
-    say(line)
+        tell(say, f"contact sheet (photo, reconstruction, stylized, painting): {sheet}")
 
 
 def export_splat(ply: Path, splat: Path) -> None:

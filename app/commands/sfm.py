@@ -21,7 +21,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     parser.add_argument("-o", "--output", metavar="DATA", required=True,
                         help="scene folder to create (must not already hold images/ or sparse/)")
     settings.add_arguments(parser)
-    add_run_flags(parser, progress="no progress bars (staging the photos, registering them)",
+    add_run_flags(parser, progress="no progress bars (preparing the photos, features, matching, registering)",
                   no_resume="a run builds in a work folder inside DATA and starts afresh")
     parser.set_defaults(func=run)
 
@@ -29,32 +29,20 @@ def register(sub: argparse._SubParsersAction) -> None:
 def run(args: argparse.Namespace) -> int:
     import sys
 
-    from training.scene.sfm import REPORT_NAME, SfmFailed, run_sfm, summary_line
+    from training.scene.sfm import SfmFailed, result_lines, run_sfm, summary_line
 
     try:
         result = run_sfm(args.photos, args.output, log=lambda line: print(line, flush=True),
                          progress=sys.stderr.isatty() and not args.no_progress, **settings.sfm_options(args))
     except SfmFailed as exc:
         print(summary_line(exc.result.report))
-        _notes(exc.result)
+        for note in result_lines(exc.result)[1]:
+            print(f"note: {note}", file=sys.stderr)
         print(f"splatstyler: error: {exc}", file=sys.stderr)
         return 1
-    total = sum(result.seconds.values())
-    stages = ", ".join(f"{k} {v:.1f}s" for k, v in result.seconds.items())
-    print(f"{summary_line(result.report)}; {result.matcher} matching; {total:.1f} s ({stages})")
-    print(f"scene written to {result.output} (images/, sparse/0, {REPORT_NAME})")
-    _notes(result)
+    lines, notes = result_lines(result)
+    for line in lines:
+        print(line)
+    for note in notes:
+        print(f"note: {note}", file=sys.stderr)
     return 0
-
-
-def _notes(result) -> None:
-    import sys
-
-    from training.scene.sfm import name_list
-
-    if result.no_overlap:
-        print(f"note: {len(result.no_overlap)} photos overlap no other photo and are left out: "
-              f"{name_list(result.no_overlap)}", file=sys.stderr)
-    if result.unregistered:
-        print(f"note: {len(result.unregistered)} photos could not be placed and are left out: "
-              f"{name_list(result.unregistered)}", file=sys.stderr)

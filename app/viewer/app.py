@@ -17,12 +17,13 @@ from pathlib import Path
 
 import numpy as np
 
-from app.viewer import files, runs
+from app.viewer import files, photos, runs
 from app.viewer.camera_control import ViewerCamera, camera_span
 from app.viewer.colour_view import displayed
 from app.viewer.document import Document
 from app.viewer.gizmo import gizmo_keys, sync_crop_box
-from app.viewer.layout import configure, help_overlay, quit_app, style_back, style_forward, watch_style_tab
+from app.viewer.layout import (configure, floating_windows, help_overlay, quit_app, style_back, style_forward,
+                               watch_style_tab)
 from app.viewer.path_video import step_video
 from app.viewer.platform import choose_platform, prepare_glfw
 from app.viewer.session import LiveSession, SessionMessage
@@ -32,6 +33,9 @@ from app.viewer.world_edit import follow_world, scene_up
 from training.core.messages import ModelSnapshot, TrainerEvent
 
 IDLE_FPS = 4.0  # frames per second while nothing happens: each frame costs a running trainer CPU time
+# ... and while a trainer runs on software GL: a frame of the whole window there is about 65 ms of llvmpipe's CPU at
+# 1920x1080 (16 ms at 960x540: it goes by the pixels), measured idle with no model: 0.27 of the 2 cores at 4 frames/s
+IDLE_FPS_SOFTWARE_TRAINING = 2.0
 MAX_FPS = 30.0  # while the user acts
 MAX_FPS_TRAINING = 12.0  # while the user acts beside a running trainer (each frame is CPU the trainer loses)
 ACTIVE_AFTER_INPUT_S = 0.5
@@ -42,7 +46,7 @@ PATH_LINE_POINTS = 512  # the camera path drawn in the view: this many points at
 class ViewerApp:
     def __init__(self, paths: Paths | None = None, start: str | None = None, preset: str = "quick",
                  recon_iters: int | None = None, stylize_overrides: dict | None = None,
-                 downscale: int | None = None, project: str | None = None, outputs=None):
+                 downscale: int | None = None, project: str | None = None, outputs=None, photos=None):
         from training.stylize.trainer import StylizeConfig
 
         self.session = LiveSession()
@@ -56,6 +60,8 @@ class ViewerApp:
                                     stylize=StylizeConfig(preset="quick", **(stylize_overrides or {})),
                                     outputs=outputs)
         ui.project.path = project or ""
+        if photos is not None:  # PhotosState: the photos pipeline to start with the window (`view PHOTOS`)
+            ui.photos = photos
         self.ctx = None
         self.frames = 0
         self.closed = False
@@ -68,6 +74,8 @@ class ViewerApp:
         self._frame_start = 0.0
         self._frustums_hidden: frozenset[int] = frozenset()
         self._overlays_stale = False  # the stylizer changed view since the overlays were built
+        self._sfm_framed = None  # (position, rotation) of the view as the SfM preview last framed it
+        self.sfm_shown: tuple = ((), None)  # (cameras, points snapshot) of SfM the view was last given (tests look)
 
     @property
     def view(self) -> View3D | None:
@@ -105,7 +113,9 @@ class ViewerApp:
 
     def _place_camera(self) -> None:
         doc = self.document
-        if doc.cameras:
+        if not doc.cameras and self.session.cameras():
+            self._frame_sfm()
+        elif doc.cameras:
             self.view.camera = ViewerCamera.from_dataset(doc.cameras, up=scene_up(doc, self.session))  # levelled
             self.view.moved()
             self.update_overlays()
@@ -125,6 +135,37 @@ class ViewerApp:
         self.view.camera = ViewerCamera.looking_at(center + direction * distance, center, up=(0.0, -1.0, 0.0),
                                                    fov_y_degrees=fov)
         self.view.moved()
+
+    def _frame_sfm(self) -> None:
+        """The SfM preview from behind and above the cameras registered so far, their points ahead: the whole rig
+        and what it sees. Framed again as it grows, until the user moves the view."""
+        cams, snap = self.sfm_shown
+        if not cams:
+            return
+        centres = np.array([c.center for c in cams])
+        forward = np.mean([c.forward for c in cams], axis=0)
+        forward /= max(np.linalg.norm(forward), 1e-9)
+        up = -np.mean([c.camera_to_world[:3, 1] for c in cams], axis=0)
+        up /= max(np.linalg.norm(up), 1e-9)
+        seen = np.concatenate([centres, snap.means]) if snap is not None and len(snap) else centres
+        target = np.median(seen, axis=0).astype(np.float64)
+        radius = float(np.percentile(np.linalg.norm(seen - target, axis=1), 90)) or camera_span(cams) or 1.0
+        fov = 50.0
+        direction = -forward + 0.5 * up
+        eye = target + direction / np.linalg.norm(direction) * 1.2 * radius / np.sin(np.radians(fov) / 2)
+        self.view.camera = ViewerCamera.looking_at(eye, target, up=up, fov_y_degrees=fov)
+        self.view.moved()
+        self._sfm_framed = (self.view.camera.position.copy(), self.view.camera.rotation.copy())
+
+    def _sfm_view_untouched(self) -> bool:
+        """The view is where the SfM preview last framed it (the user has not moved it since)."""
+        camera = self.view.camera
+        if camera is None:
+            return True
+        if self._sfm_framed is None:
+            return False
+        position, rotation = self._sfm_framed
+        return bool(np.array_equal(position, camera.position) and np.array_equal(rotation, camera.rotation))
 
     def _snap_to_camera(self, index: int) -> None:
         cams = self.document.cameras
@@ -170,7 +211,7 @@ class ViewerApp:
     def _cameras_at_view(self) -> frozenset[int]:
         """The dataset cameras within two frustum sizes of the view's eye: their frustums would be lines from
         around the eye across the whole picture, so they are not drawn while the view stands there."""
-        cams = self.document.cameras
+        cams = self.document.cameras or list(self.sfm_shown[0])
         if not cams or self.view is None or self.view.camera is None:
             return frozenset()
         centres = np.array([c.center for c in cams])
@@ -187,16 +228,19 @@ class ViewerApp:
 
         doc, parts = self.document, []
         cams = doc.cameras
+        sfm = not cams and bool(self.sfm_shown[0]) and self.session.status().stage == "sfm"
+        if sfm:  # the cameras registered so far, the newest red
+            cams = list(self.sfm_shown[0])
         if cams:
             size = FRUSTUM_SIZE * camera_span(cams)
             if self.view.settings.show_frustums:
-                current = runs.current_camera_index(self.session)
+                current = len(cams) - 1 if sfm else runs.current_camera_index(self.session)
                 self._frustums_hidden = self._cameras_at_view()
                 shown = [i for i in range(len(cams)) if i not in self._frustums_hidden]
                 colors = [(1.0, 0.25, 0.2, 1.0) if i == current else (0.95, 0.8, 0.2, 0.8) for i in shown]
                 if shown:
                     parts.append(frustums([cams[i] for i in shown], size, colors))
-            if self.view.settings.show_path:
+            if self.view.settings.show_path and not sfm:
                 order = [item[0] for item in runs.trajectory(doc, self.session, self.ui) if not item[2]]
                 if len(order) > 1:
                     parts.append(polyline(np.array([cams[i].center for i in order]), (0.2, 0.9, 1.0, 0.9)))
@@ -217,6 +261,8 @@ class ViewerApp:
         for item in session.poll():
             if isinstance(item, SessionMessage):
                 if item.kind == "stage":
+                    if item.text == "sfm":  # a new SfM: nothing registered yet, and the view is for it to frame
+                        self.sfm_shown, self._sfm_framed = ((), None), None
                     if item.text == "stylize" and ui.training.before is None:
                         trainer = session.trainer
                         ui.training.before = trainer.snapshot() if trainer is not None else doc.model
@@ -234,12 +280,16 @@ class ViewerApp:
                     self._last_snapshot_at = 0.0  # a pause or the end: show the model as it is now
                     if item.stage == "stylize" and item.text in ("finished", "stopped", "error"):
                         style_back(ui)
+                    photos.note_state(ui, item.text)
             elif isinstance(item, TrainerEvent):
                 if item.kind == "view":
                     self._overlays_stale = True
                 elif item.kind == "warning":
                     ui.messages.say(f"warning: {item.message}")
+                elif item.kind == "info":
+                    ui.messages.say(item.message)
         runs.finish_pending(ui)
+        ui.messages.guarded("photos", photos.end_when_done, doc, session, ui)
         watch_style_tab(ui)
         if doc.cameras and view.settings.show_frustums and self._cameras_at_view() != self._frustums_hidden:
             self.update_overlays()  # the view came near cameras, or left them
@@ -297,6 +347,8 @@ class ViewerApp:
         if not shown:
             return
         self._describe(snap)
+        if session.status().stage == "sfm":
+            self._show_sfm(snap)
         editing_live = doc.live
         if editing_live and ui.training.pending:
             pass  # the editor is ahead of the trainer until its changes have been applied
@@ -311,6 +363,15 @@ class ViewerApp:
             view.renderer.set_flags(doc.editor.flags(), 0)
         if view.camera is None:
             self._place_camera()
+
+    def _show_sfm(self, snap: ModelSnapshot) -> None:
+        """A new SfM preview is on its way to the screen: its cameras' frustums with it, and the view framed on
+        them while the user has not taken it."""
+        untouched = self._sfm_view_untouched()
+        self.sfm_shown = (tuple(self.session.cameras() or ()), snap)
+        if untouched:
+            self._frame_sfm()
+        self.update_overlays()
 
     # ------------------------------------------------------------------ runner callbacks
     def post_init(self) -> None:
@@ -344,6 +405,8 @@ class ViewerApp:
                  "stylize": lambda: runs.start_stylization(doc, session, ui)}.get(self._start)
         if start is not None:
             ui.messages.guarded("start", start)
+        elif ui.photos.folder and not ui.photos.dialog:
+            ui.messages.guarded("from photos", photos.start_photos, doc, session, ui)
 
     def before_exit(self) -> None:
         """Window closed: the trainer stops and saves (checkpoint, model) before the GL objects go."""
@@ -368,7 +431,7 @@ class ViewerApp:
             ui.window.fps = 0.9 * ui.window.fps + 0.1 / ui.window.frame_dt
         while self._dropped:
             path = self._dropped.pop(0)
-            ui.messages.guarded(f"open {path}", files.open_dropped, self.document, self.session, ui, path)
+            ui.messages.guarded(f"open {path}", photos.open_dropped, self.document, self.session, ui, path)
         ui.messages.guarded("update", self.sync)
         ui.messages.guarded("keys", self.shortcuts)
         step_video(ui)
@@ -376,10 +439,13 @@ class ViewerApp:
             help_overlay(ui)
         else:
             ui.window.help_rect = None
+        floating_windows(self.document, self.session, ui)
         io = imgui.get_io()
         training = self.training_now()
         view = self.view
-        drawable = view.needs_draw(training) and (not training or view.may_draw_now())
+        # a picture to draw is drawn in this frame: while a trainer runs, the model's refresh is no reason for the
+        # frames after it to come fast (the moves that need the settled picture are input themselves)
+        drawable = not training and view.needs_draw(training)
         if (io.mouse_delta.x or io.mouse_delta.y or io.mouse_wheel or imgui.is_any_item_active()
                 or any(imgui.is_mouse_down(b) for b in range(3)) or drawable
                 or view.flying or (ui.video.job is not None and not ui.video.job.finished)):
@@ -416,7 +482,7 @@ class ViewerApp:
             ui.requests.reset = True
         if imgui.is_key_pressed(k.n, False):
             ui.requests.nearest = True
-        if imgui.is_key_pressed(k.space, False) and self.session.running:
+        if imgui.is_key_pressed(k.space, False) and self.session.running and self.session.status().stage != "sfm":
             (self.session.resume if self.session.status().state == "paused" else self.session.pause)()
         if imgui.is_key_pressed(k.delete, False) and doc.editor is not None:
             ui.messages.guarded("delete", doc.delete)
@@ -427,13 +493,15 @@ class ViewerApp:
         self._active_at = time.perf_counter()
 
     def pace(self) -> None:
-        """Sleep out the rest of the frame: 30 frames/s while the user acts or something is being drawn, 4 when
-        nothing happens. Sleeping frees the CPU and the GIL for the trainer. (Hello ImGui's own idling either
+        """Sleep out the rest of the frame: 30 frames/s while the user acts or something is being drawn (12 beside
+        a running trainer), 4 when nothing happens (2 beside a trainer on software GL). Sleeping frees the CPU and the GIL for the trainer. (Hello ImGui's own idling either
         never idled or spun a whole core on GLFW's null platform, measured; ours is the same on every platform.)"""
         now = time.perf_counter()
         active = now - self._active_at < ACTIVE_AFTER_INPUT_S
-        top = MAX_FPS_TRAINING if self.training_now() else MAX_FPS
-        wait = 1.0 / (top if active else IDLE_FPS) - (now - self._frame_start)
+        training = self.training_now()
+        top = MAX_FPS_TRAINING if training else MAX_FPS
+        idle = IDLE_FPS_SOFTWARE_TRAINING if training and self.ui.window.software_gl else IDLE_FPS
+        wait = 1.0 / (top if active else idle) - (now - self._frame_start)
         if wait > 0:
             if self._platform == "null":
                 time.sleep(wait)  # no input to wait for (and the null platform's event wait returns at once)

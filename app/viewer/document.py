@@ -150,6 +150,14 @@ class Document:
         self.editor = Editor(snapshot_of(g, version=-int(time.time() * 1000) % 1_000_000_000))
         self.live = False
 
+    def new_scene(self) -> None:
+        """An empty scene (what photos are made into): no model, dataset, camera path or project; the painting
+        stays, as a project that names none keeps it."""
+        fresh = Document()
+        fresh.painting = self.painting
+        for name, value in vars(fresh).items():
+            setattr(self, name, value)
+
     def open_dataset(self, path: str) -> None:
         from training.scene.loader import load_scene
 

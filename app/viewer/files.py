@@ -184,6 +184,16 @@ def choose_file(title: str, filters: list[str], save: bool = False, start: str =
     return chosen[0] if chosen else ""
 
 
+def choose_folder(title: str, start: str = "") -> str:
+    """A folder from the system's folder dialog, '' when cancelled; an error when no dialog program exists."""
+    if not dialogs_available():
+        raise ValueError("no file dialog program on this system (zenity or kdialog): drop the folder on the window, "
+                         "or give it on the command line (splatstyler view FOLDER)")
+    from imgui_bundle import portable_file_dialogs as pfd
+
+    return pfd.select_folder(title, str(Path(start).absolute()) if start else "").result()
+
+
 OPENERS = {"model": open_model, "data": open_data, "style": open_style, "project": open_project,
            "add": add_to_scene}
 

@@ -18,8 +18,11 @@ from imgui_bundle import hello_imgui, imgui
 from app.viewer import edit_panel, export_panel, gizmo_panel, select_tools_panel
 from app.viewer.colour_panel import colour_panel
 from app.viewer.files import open_from_dialog, save_project, save_project_as
+from app.viewer.sfm_run import phase_time_left
 from app.viewer.measure_panel import measure_panel
 from app.viewer.path_panel import path_panel
+from app.viewer.photos import choose_photos_folder
+from app.viewer.photos_panel import photos_dialog
 from app.viewer.scene_panel import scene_panel
 from app.viewer.style_panel import style_panel
 from app.viewer.text_colours import RED
@@ -98,7 +101,11 @@ def status_text(session, ui) -> str:
     view's frames per second, and how far the view is behind the trainer."""
     status = session.status()
     bits = []
-    if session.trainer is not None or status.stage:
+    if status.detail:  # a stage whose steps are no iterations (SfM): its phase, in words
+        bits += [f"{status.stage}: {status.state}", status.detail]
+        if status.seconds_left is not None and status.state == "running":
+            bits.append(phase_time_left(status.seconds_left))  # the phase's: SfM's phases differ in kind
+    elif session.trainer is not None or status.stage:
         line = f"{status.stage or '-'}: {status.state}"
         if status.total:
             line += f" {status.step}/{status.total}"
@@ -118,7 +125,7 @@ def status_text(session, ui) -> str:
     else:
         bits.append("idle")
     count = ui.window.model_info.get("count")
-    if count:
+    if count and status.stage != "sfm":  # SfM shows its points, which its line counts
         bits.append(f"{count:,} Gaussians")
     bits.append(f"{ui.window.fps:.0f} fps")
     return "   |   ".join(bits)
@@ -138,6 +145,9 @@ def status_bar(session, ui) -> None:
 def menus(doc, session, ui) -> None:
     guarded = ui.messages.guarded
     if imgui.begin_menu("File"):
+        if imgui.menu_item("New from photos...", "", False)[0]:
+            guarded("new from photos", choose_photos_folder, ui)
+        imgui.separator()
         for label, what in (("Open model...", "model"), ("Open dataset...", "data"), ("Open painting...", "style")):
             if imgui.menu_item(label, "", False)[0]:
                 guarded("open", open_from_dialog, doc, session, ui, what)
@@ -159,6 +169,11 @@ def menus(doc, session, ui) -> None:
             hello_imgui.get_runner_params().docking_params.layout_reset = True
         _, ui.window.show_help = imgui.menu_item("Keys (H)", "", ui.window.show_help)
         imgui.end_menu()
+
+
+def floating_windows(doc, session, ui) -> None:
+    """The windows over the layout: the New from photos dialog, while it is open."""
+    ui.messages.guarded("new from photos", photos_dialog, doc, session, ui)
 
 
 def quit_app() -> None:

@@ -23,8 +23,15 @@ def next_run_dir(out: Path, name: str = "stylized") -> Path:
 
 
 def record_saved(doc, ui, stage: str, path: str) -> None:
-    """A stage saved its model: a reconstruction becomes the model later stylizations start from; a stylization is
-    listed as a run (and starts the next one only when the user asks to continue)."""
+    """A stage saved its model: structure from motion's scene opens as the dataset (its cameras in the view, the
+    scene the next stages read); a reconstruction becomes the model later stylizations start from; a stylization
+    is listed as a run (and starts the next one only when the user asks to continue)."""
+    if stage == "sfm":
+        from app.viewer.files import open_data
+
+        ui.messages.say(f"saved {path}")
+        open_data(doc, None, ui, path)  # opening a dataset asks nothing of the session
+        return
     if stage == "stylize":
         ui.training.runs.append(Path(path))
     else:

@@ -60,7 +60,10 @@ def scene_panel(doc, session, ui) -> None:
     view = ui.view
     if info.get("count"):
         lo, hi = info["min"], info["max"]
-        imgui.text(f"{info['count']:,} Gaussians, SH degree {info['sh_degree']}")
+        if session.status().stage == "sfm":  # structure from motion's sparse points, drawn as small round splats
+            imgui.text(f"{info['count']:,} sparse points (structure from motion)")
+        else:
+            imgui.text(f"{info['count']:,} Gaussians, SH degree {info['sh_degree']}")
         imgui.text(f"bounds {np.array2string(lo, precision=2)} .. {np.array2string(hi, precision=2)}")
     if doc.cameras:
         imgui.text(f"{len(doc.cameras)} dataset cameras")

@@ -5,13 +5,15 @@ and reads, without ever blocking on a step: the events the trainer emits and the
 (``poll()``), the latest model (``snapshot()``, the trainer's consistent copy), and a status line's figures
 (``status()``). The trainer never waits on a frame: commands are read between steps.
 
-A run is a list of stages (``Stage``): reconstruct, then stylize, or either alone. Each stage builds its trainer
-inside the thread (loading a scene or VGG takes seconds, and the window must stay live meanwhile), steps it to the
-end, and saves its outputs. Stop, window close and Ctrl-C save too: a reconstruction writes its checkpoint and PLY,
-a stylization its current model (also when the stop comes during its final colour transfer: a save cancelled part
-way saves again, quickly, what there is, and the stage's further outputs and the next stage are skipped); an
-exception in the trainer becomes one line in the UI and the session goes on. Settings given while a stage's
-trainer is being built are kept for that trainer (``update_config``), never handed to the last stage's.
+A run is a list of stages (``Stage``): reconstruct, then stylize, or either alone; from photos, structure from
+motion first (its "trainer" runs the whole SfM in one step, and Stop reaches it inside that step: ``interrupt``).
+Each stage builds its trainer inside the thread (loading a scene or VGG takes seconds, and the window must stay live
+meanwhile), steps it to the end, and saves its outputs. Stop, window close and Ctrl-C save too: a reconstruction
+writes its checkpoint and PLY, a stylization its current model (also when the stop comes during its final colour
+transfer: a save cancelled part way saves again, quickly, what there is, and the stage's further outputs and the
+next stage are skipped); an exception in the trainer becomes one line in the UI and the session goes on. Settings
+given while a stage's trainer is being built are kept for that trainer (``update_config``), never handed to the last
+stage's.
 
 The session never sleeps the trainer: sharing the CPU with the view is the view's business (it limits how much of
 the time it spends drawing while a trainer runs; see view3d.py).
@@ -50,12 +52,16 @@ class Stage:
     next stage builds from; it runs when the schedule ends (finished=True) and on stop or error (finished=False,
     where it must be quick: keep the model, skip the long final passes). ``outputs(trainer, saved, say)``, when
     given, runs after a finished stage has saved (still on the training thread, the state "finishing"): the rest of
-    what the stage writes (reports, renders); ``say(line)`` puts a line in the window at once (an "info" message)."""
+    what the stage writes (reports, renders); ``say(line)`` puts a line in the window at once (an "info" message).
+    ``stopped(trainer)``, when given, is the one line that says what a stop before the stage finished left (SfM:
+    nothing); it goes to the window and to ``LiveSession.notes``, which the console prints once the window is
+    closed."""
 
     name: str
     build: Callable[[Any], Any]
     save: Callable[[Any, bool, Callable[[], bool]], Any]
     outputs: Callable[[Any, Any, Callable[[str], None]], None] | None = None
+    stopped: Callable[[Any], str] | None = None
 
 
 @dataclass
@@ -68,6 +74,7 @@ class SessionStatus:
     seconds_left: float | None = None
     error: str = ""
     last_metrics: dict[str, float] = field(default_factory=dict)
+    detail: str = ""  # what the stage does now, in words, when its steps are not iterations (SfM: its phase)
 
 
 class LiveSession:
@@ -91,6 +98,7 @@ class LiveSession:
         self._pending_config: dict[str, Any] = {}
         self._taking_calls = False  # under _lock: submit() queues only while the thread will still answer
         self.saved: list[Path] = []
+        self.notes: list[str] = []  # the lines of stopped stages (Stage.stopped), for the console after the window
         self.history: deque[dict[str, float]] = deque(maxlen=history)  # step metrics, for the curves
 
     # ------------------------------------------------------------------ commands (UI thread)
@@ -109,7 +117,7 @@ class LiveSession:
             self._status.stage = stages[0].name if stages else ""
             self._taking_calls = True
         self._set(state="loading", error="", step=0, total=0, last_metrics={}, steps_per_second=0.0,
-                  seconds_left=None)
+                  seconds_left=None, detail="")
         self._thread.start()
 
     def pause(self) -> None:
@@ -128,6 +136,10 @@ class LiveSession:
     def stop(self) -> None:
         self._stop.set()
         self._commands.put(("wake",))
+        # a trainer whose one step is long (SfM) is told now; one still being built sees the stop before stepping
+        interrupt = getattr(self._trainer, "interrupt", None)
+        if interrupt is not None and self.running:
+            interrupt()
 
     def release(self) -> None:
         """Forget a run that has ended: its trainer stops being the model the viewer shows and edits (opening
@@ -209,6 +221,13 @@ class LiveSession:
         trainer = self._trainer
         return None if trainer is None else trainer.snapshot()
 
+    def cameras(self) -> list | None:
+        """The cameras the running stage has placed so far (SfM's registered photos, pinhole Camera), or None for
+        a stage that places none."""
+        trainer = self._trainer
+        placed = getattr(trainer, "cameras", None) if self.status().stage == "sfm" else None
+        return None if placed is None else list(placed())
+
     def poll(self) -> list[TrainerEvent | SessionMessage]:
         """Everything that happened since the last poll, oldest first; never blocks."""
         out = []
@@ -222,7 +241,7 @@ class LiveSession:
         with self._lock:
             s = self._status
             return SessionStatus(s.stage, s.state, s.step, s.total, s.steps_per_second, s.seconds_left, s.error,
-                                 dict(s.last_metrics))
+                                 dict(s.last_metrics), s.detail)
 
     # ------------------------------------------------------------------ the training thread
     def _set(self, **fields_: Any) -> None:
@@ -240,6 +259,10 @@ class LiveSession:
                 self._status.step = event.step
                 self._status.total = int(event.metrics.get("total_iters", self._status.total))
                 self._status.last_metrics = event.metrics
+                self._status.detail = event.message
+                if "seconds_left" in event.metrics:  # a stage that estimates its own time (SfM, by phase)
+                    left = event.metrics["seconds_left"]
+                    self._status.seconds_left = left if left >= 0 else None
 
     def _handle(self, command: tuple) -> bool:
         """Apply one command; True when it asks for exactly one step."""
@@ -332,7 +355,9 @@ class LiveSession:
                 # the last stage's figures are not this one's (a panel reading them would take a reconstruction's
                 # for the stylization's)
                 self._status.last_metrics, self._status.step, self._status.total = {}, 0, 0
+                self._status.detail, self._status.seconds_left, self._status.steps_per_second = "", None, 0.0
             self._out.put(SessionMessage("stage", stage.name, stage.name))
+            self._step_times.clear()  # the last stage's step times are not this one's (an SfM "step" is minutes)
             # each stage's curves start afresh: a stylization's steps count from 0 again, and its "loss" joined to
             # the reconstruction's drew a line back across the plot
             self.history.clear()
@@ -358,6 +383,10 @@ class LiveSession:
                 if previous is not None:
                     self._out.put(SessionMessage("saved", str(previous), stage.name))
                     self.saved.append(Path(str(previous)))
+                if not finished and stage.stopped is not None:
+                    line = stage.stopped(trainer)
+                    self.notes.append(line)
+                    self._out.put(SessionMessage("info", line, stage.name))
                 if not finished or self._stop.is_set():  # a stop during the save: no outputs, no next stage
                     self._set(state="stopped")
                     return

@@ -1,4 +1,9 @@
-"""The stages a live session runs: reconstruction and stylization, built and saved as the CLI builds and saves them.
+"""The stages a live session runs: structure from motion, reconstruction and stylization, built and saved as the CLI
+builds and saves them.
+
+An SfM stage runs `splatstyler sfm`'s run_sfm (app/viewer/sfm_run.py) into OUT, a COLMAP folder that appears only
+whole: stopped or failed, it leaves nothing, and says so in one line (``Stage.stopped``); it hands OUT to the next
+stage, and its outputs are the lines the console prints at the end (the summary, the photos left out).
 
 A reconstruction stage writes OUT/checkpoint.pt (resumable with ``splatstyler reconstruct --resume``; kept when it
 finished, as the CLI keeps it) and OUT/point_cloud.ply, whether it finished or was stopped; a stylization stage
@@ -21,9 +26,37 @@ from typing import Any
 from app.viewer.session import Stage
 
 
+def sfm_stage(photos: str | Path, out: str | Path, options: dict | None = None) -> Stage:
+    """Structure from motion of the photos in ``photos`` into the scene folder ``out`` (``options``: run_sfm's
+    settings, as app/settings/sfm.py gives them; default `splatstyler sfm`'s)."""
+    from app.settings import sfm as settings
+    from app.viewer.sfm_run import SfmRun
+
+    out = Path(out)
+
+    def build(_previous):
+        return SfmRun(Path(photos), out, settings.options_from_flags() if options is None else options)
+
+    def save(trainer, finished: bool, cancel) -> Path | None:
+        return out if finished else None  # run_sfm put the whole folder in place, or nothing
+
+    def outputs(trainer, saved, say) -> None:
+        from training.scene.sfm import result_lines
+
+        lines, notes = result_lines(trainer.result)
+        for line in lines + [f"note: {n}" for n in notes]:
+            say(line)
+
+    def stopped(trainer) -> str:
+        return f"structure from motion stopped: nothing written ({out} appears only once complete)"
+
+    return Stage("sfm", build, save, outputs, stopped)
+
+
 def reconstruct_stage(data: str | Path, out: str | Path, preset: str = "quick", downscale: int | None = None,
-                      outputs=None, **overrides: Any) -> Stage:
-    """3DGS with the paper's regularizers on DATA, the CLI's presets (``overrides``: ReconstructConfig fields)."""
+                      outputs=None, iterations: int | None = None) -> Stage:
+    """3DGS with the paper's regularizers on DATA, with the settings `splatstyler reconstruct --preset PRESET
+    [--iters ITERATIONS] [--downscale DOWNSCALE]` takes (app/settings/reconstruct.py)."""
     import time
 
     out = Path(out)
@@ -32,22 +65,19 @@ def reconstruct_stage(data: str | Path, out: str | Path, preset: str = "quick", 
     fingerprint: dict[str, Any] = {}  # the data as the run read it (a save must not read the data folder again)
 
     def build(_previous):
-        from training.reconstruct.trainer import ReconstructConfig, Reconstructor
-        from training.scene.loader import load_scene
-
+        from app.settings import parse_flags
+        from app.settings import reconstruct as settings
         from training.reconstruct.resolution import training_downscale
+        from training.reconstruct.trainer import Reconstructor
         from training.scene.fingerprint import dataset_fingerprint, make_fingerprint
+        from training.scene.loader import load_scene
 
         # at the start, as the CLI takes it: the checkpoint names the data the run was made from, and a save (Stop,
         # window close) still works when the data folder has moved or gone since
         fingerprint.update(make_fingerprint(dataset=dataset_fingerprint(data)))
-        extra = dict(overrides)
-        iterations = extra.pop("iterations", None)
-        cfg = ReconstructConfig.from_preset(preset, **extra)
-        if iterations is not None:  # as --iters: the schedule stretches with the run
-            cfg = cfg.with_iterations(iterations)
-        if downscale is not None:  # an explicit factor wins over the preset's target long side, as on the CLI
-            cfg.downscale, cfg.max_side = int(downscale), None
+        flags = (["--preset", preset] + ([] if iterations is None else ["--iters", str(int(iterations))])
+                 + ([] if downscale is None else ["--downscale", str(int(downscale))]))
+        cfg = settings.config_from_args(parse_flags(settings.add_arguments, flags, "reconstruct flags"))
         cfg.downscale = training_downscale(data, cfg.max_side, cfg.downscale)
         scene = load_scene(data, downscale=cfg.downscale)
         trainer = Reconstructor(scene, cfg)

@@ -1,8 +1,9 @@
 """The viewer's UI state by role, each a typed object the panels read and write: the paths typed in the Scene panel,
 the one-line messages, what the edit tools, the gizmo, the Colour panel's controls, the extra selections and the
 measure tools hold, the export dialog's settings, the video of the camera path, the training runs' settings and
-outputs, the project file, and the window's own (where the 3D view is, frame timing, what is shown). ``Ui`` holds
-one of each; panels get it with the document and the session, and nothing adds attributes to it.
+outputs, the New from photos dialog and the photos pipeline it starts, the project file, and the window's own (where
+the 3D view is, frame timing, what is shown). ``Ui`` holds one of each; panels get it with the document and the
+session, and nothing adds attributes to it.
 
 What is edited (the models, their edits, the dataset, the painting, the camera path) is the document's
 (document.py), not here.
@@ -15,6 +16,8 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
+
+from training.scene.sfm import DEFAULT_MAX_SIZE
 
 TOOLS = ("orbit", "rect", "brush", "lasso", "surface brush", "colour pick")  # the last two: select_tools_panel
 REGIONS = ("all", "selection", "unselected")
@@ -180,6 +183,24 @@ class TrainingState:
 
 
 @dataclass
+class PhotosState:
+    """The New from photos dialog (photos_panel.py) and the photos pipeline it starts (photos.py): structure from
+    motion, reconstruction, and with a painting, stylization, into one output folder."""
+
+    dialog: bool = False  # the dialog is open
+    folder: str = ""  # the photos
+    painting: str = ""  # optional: without one the pipeline ends after the reconstruction
+    max_size: int = DEFAULT_MAX_SIZE  # the photos' long side at most, for SfM (`splatstyler sfm --max-size`)
+    camera_model: str = "SIMPLE_RADIAL"
+    # the pipeline under way or last run: its output folder ("" before any), its stages' folders, and whether its
+    # end has been taken care of (the model opened, the project written)
+    out: str = ""
+    folders: dict = field(default_factory=dict)
+    ended: bool = True
+    ending: str = ""  # the state the run ended in (finished, stopped, error), until its thread is gone
+
+
+@dataclass
 class ProjectState:
     path: str = ""  # the project file this session was opened from or last saved to
     layout_to_load: str = ""  # a project's dock layout, applied before the next frame
@@ -251,6 +272,7 @@ class Ui:
     export: ExportSettings = field(default_factory=ExportSettings)
     video: VideoSettings = field(default_factory=VideoSettings)
     training: TrainingState = field(default_factory=TrainingState)
+    photos: PhotosState = field(default_factory=PhotosState)
     project: ProjectState = field(default_factory=ProjectState)
     window: WindowState = field(default_factory=WindowState)
     textures: StyleTextures = field(default_factory=StyleTextures)

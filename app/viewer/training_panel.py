@@ -1,5 +1,7 @@
 """The Training panel: start a reconstruction, a stylization or both; pause, step, stop; how the view shares the CPU
-with the trainer; status, progress and loss curves."""
+with the trainer; status, progress and loss curves. During structure from motion (the photos pipeline) the status
+is its phase (photos prepared, features, pairs matched, photos registered and points), the phase's time left, and
+the points over the registrations; SfM cannot pause (COLMAP does the work), so Pause and Step are off then."""
 
 from __future__ import annotations
 
@@ -8,6 +10,7 @@ from imgui_bundle import imgui, implot
 
 from app.viewer.files import open_model
 from app.viewer.runs import start_reconstruction, start_stylization, stylize_progress
+from app.viewer.sfm_run import phase_time_left
 from app.viewer.view3d import RANGES
 from app.viewer.text_colours import RED
 
@@ -43,7 +46,8 @@ def training_panel(doc, session, ui) -> None:
     imgui.set_item_tooltip("off: Stylize starts from the model as opened or reconstructed (runs do not compound); "
                            "on: from the last run's output")
     imgui.end_disabled()
-    imgui.begin_disabled(not running or status.state == "paused")
+    sfm = status.stage == "sfm"
+    imgui.begin_disabled(not running or status.state == "paused" or sfm)
     if imgui.button("Pause"):
         session.pause()
     imgui.end_disabled()
@@ -53,10 +57,12 @@ def training_panel(doc, session, ui) -> None:
         session.resume()
     imgui.end_disabled()
     imgui.same_line()
-    imgui.begin_disabled(not running)
+    imgui.begin_disabled(not running or sfm)
     if imgui.button("Step"):
         session.single_step()
+    imgui.end_disabled()
     imgui.same_line()
+    imgui.begin_disabled(not running)
     if imgui.button("Stop"):
         session.stop()
     changed, t.pause_at = imgui.input_int("pause at", t.pause_at)
@@ -81,16 +87,20 @@ def training_panel(doc, session, ui) -> None:
 
     imgui.separator_text("Status")
     line = f"{status.stage}: {status.state}" if status.stage else status.state  # "idle" before any run
-    if status.total:
+    if status.detail:  # SfM: its phase and count, in words
+        line += f"  {status.detail}"
+    elif status.total:
         line += f"  {status.step}/{status.total}"
     where = stylize_progress(session)
     if where:
         line += f"  ({where})"
+    imgui.push_text_wrap_pos(0.0)
     imgui.text(line)
+    imgui.pop_text_wrap_pos()
     m = status.last_metrics
-    bits = [f"{status.steps_per_second:.1f} it/s"]
+    bits = [] if status.detail else [f"{status.steps_per_second:.1f} it/s"]
     if status.seconds_left is not None and status.state == "running":
-        bits.append(f"{status.seconds_left:.0f} s left")
+        bits.append(phase_time_left(status.seconds_left) if status.detail else f"{status.seconds_left:.0f} s left")
     if "num_gaussians" in m:
         bits.append(f"{int(m['num_gaussians']):,} Gaussians")
     if "psnr" in m and np.isfinite(m["psnr"]):
@@ -115,27 +125,32 @@ def training_panel(doc, session, ui) -> None:
 
 
 CURVES = {"reconstruct": ("loss", "l1", "depth", "shape", "size"),
-          "stylize": ("loss", "style_loss", "content_loss")}
+          "stylize": ("loss", "style_loss", "content_loss"),
+          "sfm": ("points",)}  # the sparse points over the photos registered
 
 
 def loss_curves(session, ui) -> None:
     history = list(session.history)
+    stage = session.status().stage
+    sfm = stage == "sfm"
+    if sfm:  # its registrations only: the other phases' steps count photos and pairs, not registrations
+        history = [h for h in history if "points" in h]
     if len(history) < 2:
         return
-    stage = session.status().stage
     steps = np.array([h["step"] for h in history], dtype=np.float64)
     # the plot takes the panel's height left below it (the list of runs keeps its lines), never less than 170 px
     reserve = (len(ui.training.runs) + 2) * imgui.get_text_line_height_with_spacing() if ui.training.runs else 0.0
     if stage == "stylize":
         reserve += BALANCE_PLOT_H + imgui.get_style().item_spacing.y  # the gradient balance below the losses
     height = max(170.0, imgui.get_content_region_avail().y - reserve)
-    if implot.begin_plot("losses", imgui.ImVec2(-1, height)):
+    if implot.begin_plot("sparse points###losses" if sfm else "losses", imgui.ImVec2(-1, height)):
         fit = implot.AxisFlags_.auto_fit.value  # the curves grow every step: keep them all in view
-        implot.setup_axes("step", "loss", fit, fit)
+        implot.setup_axes(*(("photos registered", "points") if sfm else ("step", "loss")), fit, fit)
         # above the plot, in one row: inside it, the legend covered the curves of a 170 px plot
         implot.setup_legend(implot.Location_.north.value,
                             implot.LegendFlags_.outside.value | implot.LegendFlags_.horizontal.value)
-        implot.setup_axis_scale(implot.ImAxis_.y1, implot.Scale_.log10)
+        if not sfm:
+            implot.setup_axis_scale(implot.ImAxis_.y1, implot.Scale_.log10)
         for key in CURVES.get(stage, ("loss",)):
             ys = np.array([h.get(key, np.nan) for h in history], dtype=np.float64)
             ys = np.where(ys > 0, ys, np.nan)

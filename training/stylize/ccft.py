@@ -335,8 +335,10 @@ def flatten_features(feats: torch.Tensor, what: str) -> torch.Tensor:
 
 class CCFTStyleLoss:
     """Capacity-controlled feature transport with cross-view guidance, as a style loss (training/stylize/
-    style_losses.py's interface). Its parameters are plain attributes the stylizer sets from its config (validated
-    where it entered) before each call; the formula reads them unchecked.
+    style_losses.py's interface). Its parameters are read at each call from ``settings`` (anything with ``k``,
+    ``epsilon``, ``tau``, ``lambda_guide`` and ``sinkhorn_iters``: the stylizer passes its live ``StylizeConfig``,
+    validated where it entered), or from the loss's own attributes when none is given; the formula reads them
+    unchecked.
 
     stats: loss, utilisation, column_entropy, column_entropy_normalised, reachable_fraction, and the timings
     (seconds) similarity_topk_s, cost_s, sinkhorn_s, guide_s."""
@@ -344,13 +346,13 @@ class CCFTStyleLoss:
     name = "ccft"
 
     def __init__(self, k: int = defaults.K, epsilon: float = defaults.EPSILON, tau: float = defaults.TAU,
-                 lambda_guide: float = defaults.LAMBDA_GUIDE, iters: int = defaults.SINKHORN_ITERS,
+                 lambda_guide: float = defaults.LAMBDA_GUIDE, sinkhorn_iters: int = defaults.SINKHORN_ITERS,
                  chunk_elements: int = DEFAULT_CHUNK_ELEMENTS):
         self.k = k
         self.epsilon = epsilon
         self.tau = tau
         self.lambda_guide = lambda_guide
-        self.iters = iters
+        self.sinkhorn_iters = sinkhorn_iters
         self.chunk_elements = chunk_elements
         self.guide: torch.Tensor | None = None  # (m, C) from the previous call
         self.guide_source = None  # the ``source`` of the call that built ``guide``
@@ -360,17 +362,19 @@ class CCFTStyleLoss:
     def reset_guide(self) -> None:
         self.guide = self.guide_source = None
 
-    def __call__(self, render_feats: torch.Tensor, style_feats: torch.Tensor,
-                 source=None) -> tuple[torch.Tensor, dict]:
-        """``source``: the view the render came from; the guide map this call builds is recorded as its."""
+    def __call__(self, render_feats: torch.Tensor, style_feats: torch.Tensor, source=None,
+                 settings=None) -> tuple[torch.Tensor, dict]:
+        """``source``: the view the render came from; the guide map this call builds is recorded as its.
+        ``settings``: where this call's parameters are read (default: this loss's attributes)."""
+        p = self if settings is None else settings
         X = flatten_features(render_feats, "render")
         Y = flatten_features(style_feats, "style").detach()
         guide = self.guide
         if guide is not None and (guide.shape != Y.shape or guide.device != Y.device):
             guide = None  # the style features changed size (another resolution): the old guide does not apply
-        result = _ccft(X, Y, guide, self.k, self.epsilon, self.tau, self.lambda_guide, self.iters,
-                       self.chunk_elements, "auto")
-        self.used_guide_source = self.guide_source if guide is not None and self.lambda_guide > 0 else None
+        result = _ccft(X, Y, guide, p.k, p.epsilon, p.tau, p.lambda_guide, p.sinkhorn_iters, self.chunk_elements,
+                       "auto")
+        self.used_guide_source = self.guide_source if guide is not None and p.lambda_guide > 0 else None
         self.guide, self.guide_source = result.guide, source
         self.last_result = result
         stats = {

@@ -19,6 +19,12 @@ from training.stylize.defaults import (CONTENT_NORMS, CONTENT_SOURCES, MAX_STYLE
 DEFAULT_LAMBDA_STYLE = D.LAMBDA_STYLE
 DEFAULT_LR = D.LR
 
+# Settings that shape the run when the Stylizer is built (the cameras, the trajectory, the colour transfer, the
+# device, which parameters the optimiser holds): update_config refuses them rather than ignore them, and a
+# checkpoint's fingerprint holds them (checkpoint.py).
+FIXED_AT_START = ("view_order", "virtual_views", "preset", "device", "color_transfer", "background", "scene_kind",
+                  "max_side", "seed", "params", "schedule", "content_source")
+
 
 # The useful span of each numeric setting (low, high, logarithmic): what a live control offers. ``validate`` is
 # the rule a value must meet; a value outside the span but within the rule (from the CLI) is kept, not clamped.

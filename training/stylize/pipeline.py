@@ -62,6 +62,7 @@ def stylize_to_folder(model: Path, data: Path, style: Path, out: Path, config: S
     from training.scene.loader import load_scene
     from training.stylize.checkpoint import (CHECKPOINT_NAME, load_stylize_checkpoint, save_stylize_checkpoint,
                                              stylize_fingerprint)
+    from training.stylize.style_distance import style_distance
     from training.stylize.style_image import load_style_image
 
     if warn is None:
@@ -94,8 +95,8 @@ def stylize_to_folder(model: Path, data: Path, style: Path, out: Path, config: S
         distance_start, distance_pre = saved["distance_start"], saved["distance_pre"]
     else:  # before the first step (or a checkpoint the viewer wrote: measured before its state is loaded)
         t0 = time.perf_counter()
-        distance_start = stylizer.style_distance(sh=stylizer.original_sh)
-        distance_pre = stylizer.style_distance() if stylizer.pre_transform is not None else distance_start
+        distance_start = style_distance(stylizer, sh=stylizer.original_sh)
+        distance_pre = style_distance(stylizer) if stylizer.pre_transform is not None else distance_start
         stylizer.times.add("style_distance", time.perf_counter() - t0)
     if state is not None:
         stylizer.load_state(state["trainer"])
@@ -146,7 +147,7 @@ def stylize_to_folder(model: Path, data: Path, style: Path, out: Path, config: S
     first = stylizer.history[0] if stylizer.history else None
     utilisation = stylizer.utilisation()
     t0 = time.perf_counter()
-    distance_end = stylizer.style_distance()
+    distance_end = style_distance(stylizer)
     stylizer.times.add("style_distance", time.perf_counter() - t0)
 
     measured = None
@@ -199,8 +200,8 @@ def stylize_to_folder(model: Path, data: Path, style: Path, out: Path, config: S
         "utilisation": utilisation,
         # ||content gradient|| / ||style gradient|| on the render over the run (objective.py)
         "gradient_balance": gradient_balance(stylizer.history),
-        # each step's plan against the previous step's, where it saw another view (Stylizer.step_agreement)
-        "step_match_agreement": stylizer.step_agreement(),
+        # each step's plan against the previous step's, where it saw another view (plan_readouts.StepAgreement)
+        "step_match_agreement": stylizer.agreement.mean(),
         "metrics": measured,
         "metrics_version": getattr(metrics, "version", None) if measured is not None else None,
         "color_transfer": {

@@ -111,3 +111,39 @@ def masked_step(optimizer: torch.optim.Optimizer, g: Gaussians, mask: torch.Tens
         for name in names:
             p = getattr(g, name)
             p[off] = getattr(frozen, name)[off].to(p.device)
+
+
+
+def transfer_to_selection(gaussians: Gaussians, transform, mask: torch.Tensor | None) -> Gaussians:
+    """The model with the colours of ``mask``'s Gaussians (None: all) moved by the colour map ``transform``."""
+    from training.stylize.color_transfer import apply_to_gaussians
+
+    return keep_unselected(apply_to_gaussians(gaussians, transform), gaussians, mask)
+
+
+def pre_color_transfer(content_images: list[np.ndarray], style_image: np.ndarray, cover: list[np.ndarray] | None):
+    """ARF's pre colour transfer of a run (``cover``: the selection's per-view coverage, None when every Gaussian is
+    stylized): (the map fitted from the content images, where the selection shows, to the painting; the content
+    images moved by it there)."""
+    from training.stylize.color_transfer import apply_to_image, fit_color_transfer
+
+    transform = fit_color_transfer(content_images if cover is None else covered_pixels(content_images, cover),
+                                   style_image.reshape(-1, 3))
+    moved = [apply_to_image(img, transform) for img in content_images]
+    if cover is not None:
+        moved = [blend_content(img, new, c) for img, new, c in zip(content_images, moved, cover)]
+    return transform, moved
+
+
+def post_color_transfer(renders: list[tuple[np.ndarray, np.ndarray]], style_image: np.ndarray,
+                        cover: list[np.ndarray] | None):
+    """ARF's post colour transfer's map, fitted from the stylized ``renders`` (image, alpha), where the selection
+    shows (``cover`` as for ``pre_color_transfer``), to the painting; None when no pixel is covered."""
+    from training.stylize.color_transfer import fit_color_transfer, foreground_pixels
+
+    if cover is None:
+        pixels = [foreground_pixels(img, a) for img, a in renders]
+    else:
+        pixels = covered_pixels([img for img, _ in renders], cover, [a for _, a in renders])
+    pixels = [p for p in pixels if len(p)]
+    return fit_color_transfer(pixels, style_image.reshape(-1, 3)) if pixels else None

@@ -35,3 +35,16 @@ def check_model_matches_scene(gaussians: Gaussians, cameras: list[Camera], model
         raise InputError(model_name, f"only {fraction:.0%} of its {len(means)} Gaussians lie inside any camera's "
                                      "view: the model does not belong to this scene (or to its coordinate frame)")
     return fraction
+
+
+def check_renders_not_empty(render, cameras: list[Camera], model_name: str | Path | None = None) -> None:
+    """InputError when small renders (``render(camera)`` -> (image, alpha)) of the first, middle and last of
+    ``cameras`` all show (nearly) nothing."""
+    from training.stylize.config import render_camera
+
+    picks = sorted({0, len(cameras) // 2, len(cameras) - 1})
+    with torch.no_grad():
+        coverage = [float(render(render_camera(cameras[i], 96))[1].mean()) for i in picks]
+    if max(coverage) < MATCH_MIN_ALPHA:
+        raise InputError(model_name, f"renders of the scene's views are empty (coverage at most "
+                                     f"{max(coverage):.1%}): the model does not match this scene")

@@ -1,8 +1,9 @@
 """Style losses behind one interface: CCFT (ours), NNFM (ARF's nearest-neighbour feature matching), Gram (Gatys).
 
-``loss, stats = style_loss(render_feats, style_feats, source=view)`` with render_feats (1, C, h, w) and style_feats
-(1, C, h2, w2); ``source`` names the view the render came from. Parameters are plain attributes that may change
-between calls (the viewer edits them live). CCFT keeps its guide map from one call to the next (built from the
+``loss, stats = style_loss(render_feats, style_feats, source=view, settings=config)`` with render_feats (1, C, h, w)
+and style_feats (1, C, h2, w2); ``source`` names the view the render came from; ``settings`` is where the call reads
+its parameters (the stylizer's live config: the viewer edits it between steps), the loss's own attributes when
+None. CCFT keeps its guide map from one call to the next (built from the
 previous call's render) and says whose it was (``guide_source``, ``used_guide_source``); ``reset_guide()`` forgets
 it. CCFT's own is in ``training.stylize.ccft`` beside its formula.
 """
@@ -44,8 +45,8 @@ class NNFMStyleLoss:
     def reset_guide(self) -> None:  # no state; present so callers can treat every loss alike
         pass
 
-    def __call__(self, render_feats: torch.Tensor, style_feats: torch.Tensor,
-                 source=None) -> tuple[torch.Tensor, dict]:
+    def __call__(self, render_feats: torch.Tensor, style_feats: torch.Tensor, source=None,
+                 settings=None) -> tuple[torch.Tensor, dict]:
         Xn = l2_normalise(flatten_features(render_feats, "render"))
         Yn = l2_normalise(flatten_features(style_feats, "style").detach())
         nn_idx = nearest_style_indices(Xn.detach(), Yn, self.chunk_elements)
@@ -80,8 +81,8 @@ class GramStyleLoss:
     def reset_guide(self) -> None:
         pass
 
-    def __call__(self, render_feats: torch.Tensor, style_feats: torch.Tensor,
-                 source=None) -> tuple[torch.Tensor, dict]:
+    def __call__(self, render_feats: torch.Tensor, style_feats: torch.Tensor, source=None,
+                 settings=None) -> tuple[torch.Tensor, dict]:
         G_r = gram_matrix(flatten_features(render_feats, "render"))
         G_s = gram_matrix(flatten_features(style_feats, "style").detach())
         loss = ((G_r - G_s) ** 2).mean()
