@@ -237,7 +237,8 @@ DOOR = "app.viewer.session"  # the one module of the app that holds a running tr
 def trainer_reaches(path: Path) -> list[int]:
     """Lines that read a ``.trainer`` attribute (a session's trainer, or anything's)."""
     tree = ast.parse(path.read_text(), filename=str(path))
-    return sorted({node.lineno for node in ast.walk(tree) if isinstance(node, ast.Attribute) and node.attr == "trainer"})
+    return sorted({node.lineno for node in ast.walk(tree)
+                   if isinstance(node, ast.Attribute) and node.attr == "trainer"})
 
 
 def app_violations() -> list[str]:

@@ -36,6 +36,7 @@ def test(ctx):
     wait(ctx, lambda: app.session.status().state == "running" and app.session.status().step >= 2, 180,
          "the stylizer to run")
     found["tau_before"] = app.session.trainer_status().config.tau
+    trainer = app.session._trainer  # the trainer itself, against what the panels did (a test may reach in)
     open_window(ctx, "Style")
     changed_at = app.session.status().step     # steps up to this one finished before the change
     ctx.item_input_value("tau", 0.05)          # the slider, through the UI

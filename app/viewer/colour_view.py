@@ -94,15 +94,9 @@ def with_strength(edits: ColourEdits, region, value: float) -> ColourEdits:
 
 
 # --------------------------------------------------------------------------------------------- the original
-def stylization(session):
-    """The status of the session's stylization (running or finished), or None."""
-    status = session.trainer_status()
-    return status if status is not None and status.stage == "stylize" else None
-
-
 def strength_problem(doc, session) -> str | None:
     """Why style strength cannot apply to the model shown (one line), or None."""
-    run = stylization(session)
+    run = session.trainer_status("stylize")
     if run is not None:
         if not run.colour_only:
             return "style strength needs a colour-only stylization: this one moved the geometry too (params all)"
@@ -123,7 +117,7 @@ def strength_problem(doc, session) -> str | None:
 # --------------------------------------------------------------------------------------------- what the view shows
 def _original_rows(doc, session, snap) -> np.ndarray | None:
     """The run's original SH for ``snap``'s rows, or None when it has none that pair."""
-    if stylization(session) is not None:
+    if session.trainer_status("stylize") is not None:
         if strength_problem(doc, session) is not None:
             return None
         sh = session.original_colours()
@@ -140,7 +134,7 @@ def displayed(doc, session, snap):
     edits = doc.colour
     if edits.is_identity:
         return snap
-    run = stylization(session)
+    run = session.trainer_status("stylize")
     original_key = id(session.original_colours()) if run is not None else id(doc.original)
     key = (id(doc), snap.version, snap.geometry_version, id(edits), id(ed.index), original_key, id(doc.source),
            id(ed.extras.get("world")))
@@ -195,8 +189,9 @@ def _opened_model_sh(doc, edits) -> np.ndarray:
 def export_baker(doc, session):
     """A function ``(gaussians, run=False, original_sh=None) -> gaussians`` with the edits as they are now baked in
     (``run``: the gaussians are the session's trainer's, ``original_sh`` its input colours, as session.UseModel
-    gives them): what the Edit panel's export writes is what the view shows. For the opened model the edits go on the whole file and the
-    kept rows are taken after (the order ``export --project`` bakes in, so both write the same SH)."""
+    gives them): what the Edit panel's export writes is what the view shows. For the opened model the edits go on
+    the whole file and the kept rows are taken after (the order ``export --project`` bakes in, so both write the
+    same SH)."""
     import torch
 
     edits = doc.colour

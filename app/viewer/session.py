@@ -277,11 +277,13 @@ class LiveSession:
         """A trainer is held (running, or ended and not released): the view shows its model, not the document's."""
         return self._trainer is not None
 
-    def trainer_status(self) -> TrainerStatus | None:
+    def trainer_status(self, stage: str | None = None) -> TrainerStatus | None:
         """The status the trainer published last (its own stage's: while the next stage loads, the last stage's
-        trainer is still the one held); None when none is held."""
+        trainer is still the one held); None when none is held, or, given ``stage``, when the one held is another
+        stage's."""
         trainer = self._trainer
-        return None if trainer is None else trainer.status()
+        status = None if trainer is None else trainer.status()
+        return None if status is None or (stage is not None and status.stage != stage) else status
 
     def snapshot(self) -> ModelSnapshot | None:
         trainer = self._trainer

@@ -61,4 +61,5 @@ class TrainerStatus:
 
 def scalars(stats: Mapping[str, Any], keys: tuple[str, ...]) -> dict[str, float]:
     """The plain numbers among ``stats[keys]`` (a step's result holds tensors and dicts too)."""
-    return {k: float(stats[k]) for k in keys if isinstance(stats.get(k), (int, float)) and not isinstance(stats[k], bool)}
+    return {k: float(stats[k]) for k in keys
+            if isinstance(stats.get(k), (int, float)) and not isinstance(stats[k], bool)}
