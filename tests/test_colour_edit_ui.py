@@ -402,7 +402,7 @@ def test(ctx):
     open_window(ctx, "Training")
     ctx.item_click("Open##run0")
     found["opened"] = app.ui.paths.model
-    found["running_trainer"] = app.session.trainer is not None
+    found["running_trainer"] = app.session.has_trainer
     np.save(OUT / "opened_run.npy", still(ctx))
     open_window(ctx, "Colour")
     ctx.yield_(2)

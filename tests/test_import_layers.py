@@ -9,8 +9,9 @@ much as one at the top, so none can be there to dodge a circle, and an importlib
 refused); the viewer's window (app/viewer/app.py) is its top, imported by nothing of the viewer; a panel
 (app/viewer/*_panel.py) is a leaf, imported only by the layout and importing no other panel; only app/cli.py imports
 the commands, and nothing imports app/cli.py but ``python -m app`` (app/__main__.py): the CLI is a front-end, not a
-library; the edited document and what it is made of import no UI; and a module's ``_private`` names are used only
-inside it."""
+library; the edited document and what it is made of import no UI; a module's ``_private`` names are used only
+inside it; and nothing in the app but the live session (app/viewer/session.py) reaches a trainer (no ``.trainer``):
+the session is the one door into a trainer, typed commands in, the trainer's status out."""
 
 from __future__ import annotations
 
@@ -230,6 +231,16 @@ def cli_imports(known: dict[str, Path]) -> list[str]:
     return list(dict.fromkeys(out))  # "from app.cli import main" names app.cli twice
 
 
+DOOR = "app.viewer.session"  # the one module of the app that holds a running trainer
+
+
+def trainer_reaches(path: Path) -> list[int]:
+    """Lines that read a ``.trainer`` attribute (a session's trainer, or anything's)."""
+    tree = ast.parse(path.read_text(), filename=str(path))
+    return sorted({node.lineno for node in ast.walk(tree)
+                   if isinstance(node, ast.Attribute) and node.attr == "trainer"})
+
+
 def app_violations() -> list[str]:
     known = project_modules()
     graph = app_graph(known)
@@ -251,6 +262,9 @@ def app_violations() -> list[str]:
                 if any(is_under(imported_name, gui) for gui in GUI_MODULES):
                     out.append(f"{name}:{line} imports {imported_name}: the document and its parts have no UI")
     for name, path in sorted(known.items()):
+        if is_under(name, "app") and name != DOOR:
+            out += [f"{name}:{line} reaches .trainer: the live session is the one door into a trainer (read its "
+                    "trainer_status(), submit a command)" for line in trainer_reaches(path)]
         if is_under(name, "app"):
             for line, used in private_uses(path, known):
                 if resolve(used.rpartition(".")[0], known) != name:
@@ -312,8 +326,8 @@ def test_the_app_has_no_circles_and_its_panels_are_leaves():
 def test_the_app_checker_sees_a_circle_a_panel_import_and_a_private_name(tmp_path, monkeypatch):
     """Planted in a copy of the tree: a circle closed by an import inside a function, one closed through importlib
     with a name built on a prefix, a panel that imports another, a document that imports imgui, another module's
-    private name, the CLI imported as a library, and importlib with a name the checker cannot read; each is
-    reported."""
+    private name, the CLI imported as a library, importlib with a name the checker cannot read, and a panel that
+    reaches into the session's trainer; each is reported."""
     import shutil
 
     for top in ("app", "training", "renderer_gl", "assets"):
@@ -326,6 +340,8 @@ def test_the_app_checker_sees_a_circle_a_panel_import_and_a_private_name(tmp_pat
     (viewer / "document.py").write_text((viewer / "document.py").read_text() + "\nfrom imgui_bundle import imgui\n")
     (viewer / "files.py").write_text((viewer / "files.py").read_text()
                                      + "\nfrom app.viewer.session import _one_line\n")
+    (viewer / "gizmo_panel.py").write_text((viewer / "gizmo_panel.py").read_text()
+                                           + "\n\ndef peek(session):\n    return session.trainer.config\n")
     evaluate = tmp_path / "app" / "evaluate"
     (evaluate / "grid.py").write_text((evaluate / "grid.py").read_text() + "\n\ndef hidden(name):\n"
                                       "    import importlib\n    return importlib.import_module(f'app.commands.{name}')"
@@ -342,6 +358,7 @@ def test_the_app_checker_sees_a_circle_a_panel_import_and_a_private_name(tmp_pat
     assert any("colour_panel imports app.viewer.style_panel: panels do not import each other" in v for v in found)
     assert any("app.viewer.document:" in v and "imgui_bundle" in v for v in found), found
     assert any("app.viewer.files:" in v and "uses app.viewer.session._one_line" in v for v in found), found
+    assert any(v.startswith("app.viewer.gizmo_panel:") and "reaches .trainer" in v for v in found), found
 
 
 @pytest.mark.parametrize("module", ["training.stylize.defaults", "training.raster.constants",

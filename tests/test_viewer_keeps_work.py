@@ -19,7 +19,7 @@ import torch
 from app.project import FileRef, ModelEntry, Project, open_project, save_project
 from app.viewer import files, runs
 from app.viewer.app import ViewerApp
-from app.viewer.session import LiveSession, SessionMessage, Stage
+from app.viewer.session import Failed, LiveSession, Saved, Stage
 from app.viewer.stages import reconstruct_stage, stylize_stage
 from app.viewer.state import Paths
 from tests.viewer_harness import make_demo_scene
@@ -49,7 +49,7 @@ def wait(condition, seconds: float, what: str) -> None:
 
 
 def saved_paths(session) -> list[str]:
-    return [m.text for m in session.poll() if isinstance(m, SessionMessage) and m.kind == "saved"]
+    return [m.path for m in session.poll() if isinstance(m, Saved)]
 
 
 # ------------------------------------------------------------------------------------------ item 1
@@ -217,7 +217,7 @@ def test_settings_given_while_a_new_run_loads_are_that_runs_not_the_last_trainer
     session = LiveSession()
     session.start([Stage("reconstruct", lambda _: tiny_reconstructor(2), lambda *a: None)])
     wait(lambda: not session.running, 120, "the first run")
-    old = session.trainer
+    old = session._trainer  # the last run's trainer itself: a test may reach in
     loading, go_on, built = threading.Event(), threading.Event(), []
 
     def build(_previous):
@@ -232,10 +232,13 @@ def test_settings_given_while_a_new_run_loads_are_that_runs_not_the_last_trainer
         answers = [session.update_config(lambda_shape=0.25), session.update_config(no_such_setting=1)]
         go_on.set()
         wait(lambda: session.status().state == "paused", 60, "the new trainer")
-        assert built[0].config.lambda_shape == 0.25 and old.config.lambda_shape != 0.25
+        session.single_step()
+        wait(lambda: session.trainer_status().step == 1, 60, "the new trainer's first step")
+        assert built[0].config.lambda_shape == 0.25 and session.trainer_status().config.lambda_shape == 0.25
+        assert old.config.lambda_shape != 0.25
         assert answers == [None, None]  # the second is checked when the trainer is there
-        errors = [m.text for m in session.poll() if isinstance(m, SessionMessage) and m.kind == "error"]
-        assert errors == ["the running reconstruct has no setting no_such_setting"]
+        errors = [m.text for m in session.poll() if isinstance(m, Failed)]
+        assert errors == ["the reconstruction has no setting no_such_setting"]
     finally:
         go_on.set()
         session.close()
@@ -258,7 +261,7 @@ def test_a_style_slider_moved_while_the_stylization_loads_is_the_runs_setting(de
         set_stylize(session, ui, tau=0.07)
         assert ui.messages.error == "" and ui.training.stylize.tau == 0.07
         wait(lambda: session.status().step >= 1, 300, "the first stylization step")
-        assert session.trainer.config.tau == 0.07
+        assert session.trainer_status().config.tau == 0.07
         assert all(abs(h["tau"] - 0.07) < 1e-9 for h in list(session.history))
     finally:
         session.close()

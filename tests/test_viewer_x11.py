@@ -170,7 +170,7 @@ def test(ctx):
     ctx.item_input_value("tau", 0.05)          # the slider, through the UI
     new_tau = lambda h: abs(h.get("tau", 0.0) - 0.05) < 1e-6
     wait(ctx, lambda: any(new_tau(h) for h in list(app.session.history)), 90, "a step that used the new tau")
-    found["tau_after"] = app.session.trainer.config.tau
+    found["tau_after"] = app.session.trainer_status().config.tau
     wait(ctx, lambda: app.ui.training.shown_step >= first_step + 40, 180, "the view to show 40 steps later")
     settle(ctx, 0.5)
     later = view_region(x_screen())
@@ -182,7 +182,7 @@ def test(ctx):
     ctx.item_click("capacity map")             # on again: the map over it
     settle(ctx, 0.5)
     np.save(OUT / "painting_map.npy", region(x_screen(), app.ui.window.painting_rect))
-    found["capacity_shape"] = list(app.session.trainer.capacity_map().shape)
+    found["capacity_shape"] = list(app.session.trainer_status().capacity.shape)
 
 run(app, test)
 found["error"] = app.ui.messages.error

@@ -86,7 +86,7 @@ def strength_section(doc, session, ui, region, usable: bool) -> None:
         imgui.push_text_wrap_pos(0.0)
         imgui.text_colored(GREY, problem)
         imgui.pop_text_wrap_pos()
-    if cv.stylizer(session) is None and doc.source is not None:
+    if session.trainer_status("stylize") is None and doc.source is not None:
         if not state.original_input:
             state.original_input = str(doc.original.ref.path) if doc.original is not None else doc.stylized_from
         _, state.original_input = imgui.input_text("original model", state.original_input)

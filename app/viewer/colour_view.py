@@ -11,7 +11,7 @@ as its part and the scene's world turn it, the order ``export --project`` bakes 
 
 Style strength blends each Gaussian's stylized SH with its original's, row for row. The original comes from:
 
-* a running or finished stylization in this session: the stylizer's ``original_sh`` (its input model's colours,
+* a running or finished stylization in this session: its input model's colours (``LiveSession.original_colours``,
   rows following its deletions), when it stylizes colours only (under ``--params all`` the geometry moved too, and
   the original's colours on the new geometry are not the photo model: strength is off, said in one line);
 * for an opened model: a paired original file (the panel's "original model", or the project's) with the same rows
@@ -94,22 +94,16 @@ def with_strength(edits: ColourEdits, region, value: float) -> ColourEdits:
 
 
 # --------------------------------------------------------------------------------------------- the original
-def stylizer(session):
-    """The session's stylizer (running or finished), or None."""
-    trainer = session.trainer
-    return trainer if trainer is not None and hasattr(trainer, "original_sh") else None
-
-
 def strength_problem(doc, session) -> str | None:
     """Why style strength cannot apply to the model shown (one line), or None."""
-    trainer = stylizer(session)
-    if trainer is not None:
-        if getattr(trainer.config, "params", "colour") != "colour":
+    run = session.trainer_status("stylize")
+    if run is not None:
+        if not run.colour_only:
             return "style strength needs a colour-only stylization: this one moved the geometry too (params all)"
-        if doc.editor is None or len(trainer.original_sh) != doc.editor.count:
+        if doc.editor is None or run.num_gaussians != doc.editor.count:
             return "the run's Gaussians are no longer the opened model's rows (edited since it started)"
         return None
-    if session.trainer is not None:
+    if session.has_trainer:
         return "style strength applies to a stylized model: this run is a reconstruction"
     if doc.editor is None:
         return "open a model"
@@ -123,12 +117,11 @@ def strength_problem(doc, session) -> str | None:
 # --------------------------------------------------------------------------------------------- what the view shows
 def _original_rows(doc, session, snap) -> np.ndarray | None:
     """The run's original SH for ``snap``'s rows, or None when it has none that pair."""
-    trainer = stylizer(session)
-    if trainer is not None:
+    if session.trainer_status("stylize") is not None:
         if strength_problem(doc, session) is not None:
             return None
-        sh = trainer.original_sh
-        return sh.detach().cpu().numpy() if len(sh) == len(snap) else None
+        sh = session.original_colours()
+        return sh if sh is not None and len(sh) == len(snap) else None
     return None  # an opened model: _opened_model_sh takes the paired original over the file's rows
 
 
@@ -141,13 +134,13 @@ def displayed(doc, session, snap):
     edits = doc.colour
     if edits.is_identity:
         return snap
-    trainer = stylizer(session)
-    original_key = id(trainer.original_sh) if trainer is not None else id(doc.original)
+    run = session.trainer_status("stylize")
+    original_key = id(session.original_colours()) if run is not None else id(doc.original)
     key = (id(doc), snap.version, snap.geometry_version, id(edits), id(ed.index), original_key, id(doc.source),
            id(ed.extras.get("world")))
     if _shown.get("key") == key:
         return _shown["snap"]
-    if trainer is None and doc.has_ledger and session.trainer is None:
+    if not session.has_trainer and doc.has_ledger:
         sh = _opened_model_sh(doc, edits)
     else:
         original = _original_rows(doc, session, snap) if edits.uses_original else None
@@ -194,26 +187,28 @@ def _opened_model_sh(doc, edits) -> np.ndarray:
 
 # --------------------------------------------------------------------------------------------- export
 def export_baker(doc, session):
-    """A function ``(gaussians, trainer or None) -> gaussians`` with the edits as they are now baked in: what the
-    Edit panel's export writes is what the view shows. For the opened model the edits go on the whole file and the
-    kept rows are taken after (the order ``export --project`` bakes in, so both write the same SH)."""
+    """A function ``(gaussians, run=False, original_sh=None) -> gaussians`` with the edits as they are now baked in
+    (``run``: the gaussians are the session's trainer's, ``original_sh`` its input colours, as session.UseModel
+    gives them): what the Edit panel's export writes is what the view shows. For the opened model the edits go on
+    the whole file and the kept rows are taken after (the order ``export --project`` bakes in, so both write the
+    same SH)."""
     import torch
 
     edits = doc.colour
     if edits.is_identity or doc.editor is None:
-        return lambda g, trainer=None: g
+        return lambda g, run=False, original_sh=None: g
     index = doc.editor.index.copy()
     problem = strength_problem(doc, session) if edits.uses_original else None
     if problem is not None:
         raise ValueError(problem)
-    opened_sh = _opened_model_sh(doc, edits) if doc.has_ledger and session.trainer is None else None
+    opened_sh = _opened_model_sh(doc, edits) if doc.has_ledger and not session.has_trainer else None
 
-    def bake(g, trainer=None):
-        if trainer is not None:
+    def bake(g, run=False, original_sh=None):
+        if run:
             if len(g) != len(index):
                 raise ValueError("the colour edits belong to another set of Gaussians than the run's: export the "
                                  "opened model, or select again")
-            original = trainer.original_sh.detach().cpu() if edits.uses_original else None
+            original = original_sh if edits.uses_original else None
             sh = edits.apply(g.sh, original_sh=original, rows=index)
             return _with_sh(g, sh)
         # the opened model as shown (the editor's rows in the scene's world)

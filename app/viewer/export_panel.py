@@ -11,19 +11,13 @@ from imgui_bundle import imgui
 
 from app.viewer.colour_view import export_baker
 from app.viewer.runs import submit_to_trainer
+from app.viewer.session import UseModel
 from app.viewer.text_colours import GREY
 from training.model.export import FORMATS, SUFFIXES as SUFFIX
 
 
-def trainer_model(trainer):
-    return trainer.stylized_gaussians() if hasattr(trainer, "stylized_gaussians") else trainer.export_gaussians()
-
-
-def model_to_export(doc, session):
-    """The model on screen: the running trainer's, else the opened one after its edits."""
-    trainer = session.trainer
-    if trainer is not None:
-        return trainer_model(trainer)
+def model_to_export(doc):
+    """The opened model after its edits, as shown (the view shows no trainer's model)."""
     if doc.editor is not None:
         return doc.in_world(doc.edited_gaussians())  # scaled and levelled as shown (measure tools)
     raise ValueError("no model to export: open one or run a reconstruction")
@@ -69,8 +63,7 @@ def export_section(doc, session, ui) -> None:
 
 
 def _count(doc, session, selection_only: bool) -> int | None:
-    trainer = session.trainer
-    snap = trainer.snapshot() if trainer is not None else doc.model
+    snap = session.snapshot() if session.has_trainer else doc.model
     if snap is None:
         return None
     n = len(snap)
@@ -82,7 +75,8 @@ def _count(doc, session, selection_only: bool) -> int | None:
 
 def write(doc, session, ui) -> None:
     """Export the model on screen. A running trainer's model is copied and written on the training thread between
-    two steps (a consistent model, never one half-way through a step or an edit); the line comes back later."""
+    two steps (a consistent model, never one half-way through a step or an edit); the line comes back later. An
+    ended run's is written at once."""
     from training.model.export import human_size, write_export
 
     st = replace(ui.export)  # the settings as they are now: the write may run later, on the training thread
@@ -105,7 +99,11 @@ def write(doc, session, ui) -> None:
         ui.messages.say(f"wrote {result.path} ({result.count:,} Gaussians, {human_size(result.size)})")
         ui.export.written.append(result.path)
 
-    if session.running and session.trainer is not None:
-        submit_to_trainer(session, ui, "export", lambda trainer: export(bake(trainer_model(trainer), trainer)), said)
+    if session.has_trainer:
+        command = UseModel(lambda g, original_sh: export(bake(g, True, original_sh)))
+        if session.running:
+            submit_to_trainer(session, ui, "export", command, said)
+        else:
+            said(session.submit(command).result())  # an ended run: answered at once
     else:
-        said(export(bake(model_to_export(doc, session), session.trainer)))
+        said(export(bake(model_to_export(doc))))

@@ -62,7 +62,7 @@ def object_matrix(doc, session, ui) -> np.ndarray | None:
         m = _translation(box.mean(axis=0))
         m[:3, :3] = np.diag(np.maximum(np.abs(box[1] - box[0]), 1e-6))
         return m
-    if doc.source is None or session.trainer is not None:
+    if doc.source is None or session.has_trainer:
         return None  # the view shows a trainer's model: what is moved is the opened model's, once it is shown
     mask = target_mask(doc, ui)
     if mask is None:

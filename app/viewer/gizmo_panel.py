@@ -31,7 +31,7 @@ def gizmo_section(doc, session, ui) -> None:
         imgui.same_line()
     if imgui.radio_button("Off", not st.op):
         st.op = ""
-    if st.op and st.target != "box" and (doc.source is None or session.trainer is not None):
+    if st.op and st.target != "box" and (doc.source is None or session.has_trainer):
         imgui.text_colored(GREY, "the gizmo moves the opened model: not while a trainer's model is shown")
     elif st.op and st.target == "selection" and not doc.editor.selected.any():
         imgui.text_colored(GREY, "select Gaussians to move them")

@@ -105,7 +105,7 @@ def status_text(session, ui) -> str:
         bits += [f"{status.stage}: {status.state}", status.detail]
         if status.seconds_left is not None and status.state == "running":
             bits.append(phase_time_left(status.seconds_left))  # the phase's: SfM's phases differ in kind
-    elif session.trainer is not None or status.stage:
+    elif session.has_trainer or status.stage:
         line = f"{status.stage or '-'}: {status.state}"
         if status.total:
             line += f" {status.step}/{status.total}"

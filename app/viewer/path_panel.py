@@ -26,7 +26,7 @@ def path_panel(doc, session, ui) -> None:
         ui.requests.overlays = True
     imgui.same_line()
     if imgui.button("Orbit"):
-        snap = session.trainer.snapshot() if session.trainer is not None else doc.model
+        snap = session.snapshot() if session.has_trainer else doc.model
         if snap is not None:
             orbit = ui.messages.guarded("orbit", orbit_around, snap.means, snap.opacities, doc.cameras or None)
             if orbit is not None:

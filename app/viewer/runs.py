@@ -1,6 +1,7 @@
 """The viewer's runs: starting a reconstruction, a stylization or both in the live session, what a stage's saved model
-becomes, the region a stylization may change, the view order it follows, and the calls handed to a running
-trainer. Every function takes the document, the session and the UI state, and runs on the UI thread."""
+becomes, the region a stylization may change, the view order it follows, and the commands handed to a running
+trainer (through the session: nothing here holds a trainer). Every function takes the document, the session and the
+UI state, and runs on the UI thread."""
 
 from __future__ import annotations
 
@@ -9,6 +10,7 @@ from pathlib import Path
 
 import numpy as np
 
+from app.viewer.session import Keep, SetRegion
 from app.viewer.stages import reconstruct_stage, stylize_stage
 
 
@@ -108,21 +110,15 @@ def region_mask(doc, ui) -> np.ndarray | None:
 def set_style_region(doc, session, ui, region: str) -> None:
     """Which Gaussians the stylization changes; a running stylizer takes it at its next step."""
     ui.edit.region = region
-    if stylizing(session) and hasattr(session.trainer, "set_mask"):
-        mask = region_mask(doc, ui)
-
-        def apply(t):
-            if mask is not None and len(mask) != len(t.gaussians):
-                raise ValueError("the selection belongs to another model than the one being stylized")
-            t.set_mask(mask)
-
-        submit_to_trainer(session, ui, "stylize region", apply)
+    # while the stylization loads, the trainer held is the stage before's: the stylizer starts with the region
+    if stylizing(session) and session.trainer_status("stylize") is not None:
+        submit_to_trainer(session, ui, "stylize region", SetRegion(region_mask(doc, ui)))
 
 
-def submit_to_trainer(session, ui, what: str, fn, done=None) -> None:
-    """``fn(trainer)`` on the training thread between steps (session.submit); its error, or ``done(result)``,
-    comes back at a later frame (``finish_pending``)."""
-    ui.training.pending.append((what, session.submit(fn), done))
+def submit_to_trainer(session, ui, what: str, command, done=None) -> None:
+    """``command`` (session.py's Keep, SetRegion, UseModel) on the training thread between steps
+    (session.submit); its error, or ``done(result)``, comes back at a later frame (``finish_pending``)."""
+    ui.training.pending.append((what, session.submit(command), done))
 
 
 def finish_pending(ui) -> None:
@@ -141,33 +137,26 @@ def keep_live(session, ui):
     """The deletions and crops of a live edit, for the document's editor: each applied between two of the trainer's
     steps, and only to the Gaussians the selection was made on (densification in between would shift the rows)."""
     def on_keep(keep: np.ndarray, structure_version: int) -> None:
-        keep = np.array(keep, dtype=bool)
-
-        def apply(trainer):
-            if trainer.structure_version != structure_version:
-                raise ValueError("the trainer changed its Gaussians since the selection was made: select again")
-            trainer.keep(keep)
-
-        submit_to_trainer(session, ui, "delete", apply)
+        submit_to_trainer(session, ui, "delete", Keep(np.array(keep, dtype=bool), structure_version))
 
     return on_keep
 
 
 def edit_live(doc, session, ui) -> None:
     """Select and delete in the model a running trainer trains; deletions reach it at its next step."""
-    trainer = session.trainer
-    if trainer is None or not hasattr(trainer, "keep") or not session.running:
+    status = session.trainer_status()
+    if status is None or not status.editable or not session.running:
         raise ValueError("no running trainer to edit")
-    doc.edit_live(trainer.snapshot(), keep_live(session, ui))
+    doc.edit_live(session.snapshot(), keep_live(session, ui))
     ui.messages.say("editing the running trainer's model: deletions and crops apply to it and cannot be undone")
 
 
 def trajectory(doc, session, ui) -> list[tuple[int, np.ndarray, bool]]:
     """(source camera index, centre, is virtual) in optimisation order: the running stylizer's, or the order the
     next stylization would follow."""
-    trainer = session.trainer
-    if session.status().stage == "stylize" and trainer is not None and hasattr(trainer, "trajectory"):
-        return [(item.source_index, item.camera.center, item.is_virtual) for item in trainer.trajectory]
+    running = session.trainer_status("stylize")
+    if session.status().stage == "stylize" and running is not None:
+        return [(stop.source_index, stop.center, stop.is_virtual) for stop in running.trajectory]
     cams = doc.cameras
     if not cams:
         return []
@@ -186,29 +175,27 @@ def trajectory(doc, session, ui) -> list[tuple[int, np.ndarray, bool]]:
 
 def current_view_index(session) -> int | None:
     """Trajectory position of the view the stylizer optimises now (None when no stylizer runs)."""
-    trainer = session.trainer
-    if session.status().stage == "stylize" and trainer is not None and hasattr(trainer, "trajectory_position"):
-        return trainer.trajectory_position
-    return None
+    running = session.trainer_status("stylize")
+    return running.trajectory_position if session.status().stage == "stylize" and running is not None else None
 
 
 def current_camera_index(session) -> int | None:
     """The dataset camera the stylizer optimises now (None when none runs or the view is a virtual one)."""
-    position = current_view_index(session)
-    if position is None:
+    running = session.trainer_status("stylize")
+    if session.status().stage != "stylize" or running is None:
         return None
-    item = session.trainer.trajectory[position]
-    return None if item.is_virtual else item.source_index
+    stop = running.trajectory[running.trajectory_position]
+    return None if stop.is_virtual else stop.source_index
 
 
 def stylize_progress(session) -> str:
     """"pass p of P, view v" while a stylization runs (v: the trajectory position the View order panel numbers,
-    the view the next step optimises; under the interleaved schedule it moves at every step), else "". Read from
-    the UI thread every frame: the trainer's step count and position are plain integers it sets between steps."""
-    trainer = session.trainer
-    if not session.running or session.status().stage != "stylize" or not hasattr(trainer, "pass_progress"):
+    the view the next step optimises; under the interleaved schedule it moves at every step), else "". From the
+    status the stylizer published after its last step."""
+    running = session.trainer_status("stylize")
+    if not session.running or session.status().stage != "stylize" or running is None:
         return ""
-    position = trainer.trajectory_position
-    done, passes = trainer.pass_progress()
-    virtual = " (virtual)" if trainer.trajectory[position].is_virtual else ""
+    position = running.trajectory_position
+    done, passes = running.pass_progress
+    virtual = " (virtual)" if running.trajectory[position].is_virtual else ""
     return f"pass {done} of {passes}, view {position}{virtual}"

@@ -1,9 +1,14 @@
-"""The live session: a trainer running in a torch thread beside the UI, talking to it only in messages.
+"""The live session: a trainer running in a torch thread beside the UI, talking to it only in messages. It is the
+one door into a trainer: nothing else in the app holds one.
 
-The UI (or a test) sends commands (pause, resume, single step, stop, pause at N, config changes, training share)
-and reads, without ever blocking on a step: the events the trainer emits and the session's own messages
-(``poll()``), the latest model (``snapshot()``, the trainer's consistent copy), and a status line's figures
-(``status()``). The trainer never waits on a frame: commands are read between steps.
+The UI (or a test) sends commands (pause, resume, single step, stop, pause at N; live settings, ``update_config``;
+and the typed commands of ``submit``: ``Keep`` (a deletion or crop), ``SetRegion`` (the Gaussians a stylization
+changes), ``UseModel`` (a whole read of the model, an export)) and reads, without ever blocking on a step: the
+events the trainer emits and the session's own typed messages (``poll()``: ``StageBegan``, ``StateChanged``,
+``Saved``, ``Failed``, ``Said``), the latest model (``snapshot()``, the trainer's consistent copy), the trainer's
+own status (``trainer_status()``: the frozen ``TrainerStatus`` it publishes after each step: capacity map,
+utilisation, trajectory position, pass, losses, gradient balance), and a status line's figures (``status()``). The
+trainer never waits on a frame: commands are read between steps.
 
 A run is a list of stages (``Stage``): reconstruct, then stylize, or either alone; from photos, structure from
 motion first (its "trainer" runs the whole SfM in one step, and Stop reaches it inside that step: ``interrupt``).
@@ -26,23 +31,88 @@ import threading
 import time
 from collections import deque
 from concurrent.futures import Future
-from dataclasses import dataclass, field, fields, replace
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Callable
 
+import numpy as np
+
 from training.core.messages import Cancelled, ModelSnapshot, TrainerEvent
+from training.core.status import TrainerStatus
 
 STATES = ("idle", "loading", "running", "paused", "finishing", "finished", "stopped", "error")
 
 
+# ---------------------------------------------------------------------------------- the session's own news (poll)
 @dataclass(frozen=True)
-class SessionMessage:
-    """The session's own news: kind "stage" (a stage began: ``text`` names it), "state" (``text`` is one of
-    STATES), "saved" (``text`` is the path), "error" (one line), "info" (one line)."""
+class StageBegan:
+    """A stage began (its trainer is being built)."""
 
-    kind: str
+    stage: str
+
+
+@dataclass(frozen=True)
+class StateChanged:
+    """The run's state is now ``state`` (one of STATES)."""
+
+    state: str
+    stage: str
+
+
+@dataclass(frozen=True)
+class Saved:
+    """A stage wrote its model to ``path``."""
+
+    path: str
+    stage: str
+
+
+@dataclass(frozen=True)
+class Failed:
+    """Something went wrong: one line for the window; the session goes on."""
+
     text: str
-    stage: str = ""
+    stage: str
+
+
+@dataclass(frozen=True)
+class Said:
+    """A line for the user that is no error (what the console prints)."""
+
+    text: str
+    stage: str
+
+
+SessionMessage = StageBegan | StateChanged | Saved | Failed | Said
+
+
+# ---------------------------------------------------------------------------------- commands for the trainer (submit)
+@dataclass(frozen=True)
+class Keep:
+    """Keep only the Gaussians where ``keep`` (N,) bool (a deletion or crop), if the trainer's Gaussians are still
+    those of ``structure_version`` (the version the selection was made on; densification in between would shift the
+    rows)."""
+
+    keep: np.ndarray
+    structure_version: int
+
+
+@dataclass(frozen=True)
+class SetRegion:
+    """The Gaussians a running stylization changes from its next step on, (N,) bool over its rows (None: all)."""
+
+    mask: np.ndarray | None
+
+
+@dataclass(frozen=True)
+class UseModel:
+    """``use(gaussians, original_sh)`` with the trainer's model whole (detached, on the CPU) and, for a stylization,
+    its input colours (N, K, 3) (else None); its result is the Future's."""
+
+    use: Callable[[Any, Any], Any]
+
+
+Command = Keep | SetRegion | UseModel
 
 
 @dataclass
@@ -52,7 +122,7 @@ class Stage:
     next stage builds from; it runs when the schedule ends (finished=True) and on stop or error (finished=False,
     where it must be quick: keep the model, skip the long final passes). ``outputs(trainer, saved, say)``, when
     given, runs after a finished stage has saved (still on the training thread, the state "finishing"): the rest of
-    what the stage writes (reports, renders); ``say(line)`` puts a line in the window at once (an "info" message).
+    what the stage writes (reports, renders); ``say(line)`` puts a line in the window at once (a ``Said`` message).
     ``stopped(trainer)``, when given, is the one line that says what a stop before the stage finished left (SfM:
     nothing); it goes to the window and to ``LiveSession.notes``, which the console prints once the window is
     closed."""
@@ -87,6 +157,7 @@ class LiveSession:
         self._thread: threading.Thread | None = None
         self._lock = threading.Lock()
         self._trainer = None
+        self._original: tuple = (None, None)  # (a stylizer's original_sh, its numpy copy): original_colours()
         self._status = SessionStatus()
         self._stop = threading.Event()
         self._paused = False
@@ -146,34 +217,39 @@ class LiveSession:
         another model does this). The run's files and its curves stay."""
         if self.running:
             raise RuntimeError("a run is going: stop it first")
-        self._trainer = None
+        self._trainer, self._original = None, (None, None)
         with self._lock:
             self._status = SessionStatus()
 
-    def submit(self, fn: Callable[[Any], Any]) -> Future:
-        """Run ``fn(trainer)`` on the training thread between two steps (never during one) and return a Future of
-        its result. Every change to a running trainer's Gaussians (deletions, crops, the stylization's region) and
-        every read that must be whole (an export) goes through here, in the order submitted.
+    def submit(self, command: Command) -> Future:
+        """Hand ``command`` to the trainer: it is carried out on the training thread between two steps (never during
+        one), and the Future holds its result or its refusal (a ValueError in one line). Every change to a running
+        trainer's Gaussians (deletions, crops, the stylization's region) and every read that must be whole (an
+        export) goes through here, in the order submitted.
 
-        The call belongs to the trainer running now (whose model the user acted on): it runs on that trainer, at
-        the latest when its stage ends and before the stage saves; once the next stage has begun it is refused
-        (the Future's exception says so), never run on the next stage's trainer."""
+        The command belongs to the trainer running now (whose model the user acted on): it is carried out on that
+        trainer, at the latest when its stage ends and before the stage saves; once the next stage has begun it is
+        refused (the Future's exception says so), never carried out on the next stage's trainer. A ``UseModel``
+        given when the run has ended (its trainer still held) is answered at once: no step can run meanwhile."""
         trainer = self._trainer
         future: Future = Future()
+        if isinstance(command, UseModel) and trainer is not None and not self.running:
+            future.set_running_or_notify_cancel()
+            self._carry_out(command, trainer, future)
+            return future
         with self._lock:  # not between the thread's last look at the queue and its end: nobody would answer
             if not self.running or trainer is None or not self._taking_calls:
                 raise ValueError("no trainer is running")
-            self._commands.put(("call", fn, future, trainer, self._status.stage))
+            self._commands.put(("call", command, future, trainer, self._status.stage))
         return future
 
     def update_config(self, **changes: Any) -> str | None:
-        """Hand settings to the running trainer: it takes them between two steps, on the training thread, into the
-        config its next step reads. They were validated where they entered (a slider's config, a command line);
-        here only what the running trainer cannot take is refused, as one line: a setting it does not have, or one
-        fixed when it started (``FIXED_AT_START``). None when handed over.
+        """Hand live settings to the running trainer through its ``update_config`` (the one way settings reach a
+        trainer: it checks them and its next step takes them). None when handed over, else the refusal in one line:
+        a setting the trainer does not have, one fixed when it started (``FIXED_AT_START``), a value it refuses.
 
         While a stage is loading (its trainer not built yet) the settings are kept for that trainer: it starts with
-        them (they are checked then, and a refusal is an "error" message)."""
+        them (they are checked then, and a refusal is a ``Failed`` message)."""
         if not self.running:
             return "no trainer is running"
         with self._lock:
@@ -183,23 +259,7 @@ class LiveSession:
             trainer = self._trainer
         if trainer is None:
             return "no trainer is running"
-        refusal = self._config_refusal(trainer, changes)
-        if refusal:
-            return refusal
-        self._commands.put(("config", dict(changes), trainer))
-        return None
-
-    def _config_refusal(self, trainer, changes: dict[str, Any]) -> str | None:
-        config = trainer.config
-        unknown = sorted(set(changes) - {f.name for f in fields(config)})
-        if unknown:
-            return f"the running {self._status.stage} has no setting {', '.join(unknown)}"
-        fixed = sorted(name for name in changes if name in getattr(trainer, "FIXED_AT_START", ())
-                       and changes[name] != getattr(config, name))
-        if fixed:
-            return (f"{', '.join(fixed)} can only be set before the {self._status.stage} starts (start a new run to "
-                    f"change {'it' if len(fixed) == 1 else 'them'})")
-        return None
+        return _config_refusal(trainer, changes)
 
     def close(self, timeout: float = 600.0) -> None:
         """Stop, let the stage save, wait for the thread."""
@@ -213,20 +273,39 @@ class LiveSession:
         return self._thread is not None and self._thread.is_alive()
 
     @property
-    def trainer(self):
-        """The current trainer, for read-only queries that are themselves thread-safe (snapshot, config)."""
-        return self._trainer
+    def has_trainer(self) -> bool:
+        """A trainer is held (running, or ended and not released): the view shows its model, not the document's."""
+        return self._trainer is not None
+
+    def trainer_status(self, stage: str | None = None) -> TrainerStatus | None:
+        """The status the trainer published last (its own stage's: while the next stage loads, the last stage's
+        trainer is still the one held); None when none is held, or, given ``stage``, when the one held is another
+        stage's."""
+        trainer = self._trainer
+        status = None if trainer is None else trainer.status()
+        return None if status is None or (stage is not None and status.stage != stage) else status
 
     def snapshot(self) -> ModelSnapshot | None:
         trainer = self._trainer
         return None if trainer is None else trainer.snapshot()
 
+    def original_colours(self) -> np.ndarray | None:
+        """A stylization's input colours (N, K, 3) over its current rows, read-only (what style strength blends
+        back); None when the trainer held is no stylization. The same array until its rows change."""
+        sh = getattr(self._trainer, "original_sh", None)
+        if sh is None:
+            return None
+        if self._original[0] is not sh:
+            array = sh.detach().cpu().numpy()
+            array.setflags(write=False)
+            self._original = (sh, array)
+        return self._original[1]
+
     def cameras(self) -> list | None:
         """The cameras the running stage has placed so far (SfM's registered photos, pinhole Camera), or None for
         a stage that places none."""
-        trainer = self._trainer
-        placed = getattr(trainer, "cameras", None) if self.status().stage == "sfm" else None
-        return None if placed is None else list(placed())
+        status = self.trainer_status()
+        return list(status.cameras) if status is not None and status.stage == "sfm" else None
 
     def poll(self) -> list[TrainerEvent | SessionMessage]:
         """Everything that happened since the last poll, oldest first; never blocks."""
@@ -249,7 +328,7 @@ class LiveSession:
             for k, v in fields_.items():
                 setattr(self._status, k, v)
             if "state" in fields_:
-                self._out.put(SessionMessage("state", fields_["state"], self._status.stage))
+                self._out.put(StateChanged(fields_["state"], self._status.stage))
 
     def _on_event(self, event: TrainerEvent) -> None:
         self._out.put(event)
@@ -278,23 +357,24 @@ class LiveSession:
         elif name == "step":
             self._paused = True
             return True
-        elif name == "config":
-            _, changes, trainer = command
-            if trainer is self._trainer:  # settings for a stage that has ended do not reach the next one
-                trainer.config = replace(trainer.config, **changes)
         elif name == "call":
-            _, fn, future, trainer, stage = command
+            _, call, future, trainer, stage = command
             if not future.set_running_or_notify_cancel():
                 pass
             elif trainer is not self._trainer:
                 future.set_exception(RuntimeError(f"the {stage} stage ended before this reached its model: "
                                                   "do it again on the model shown now"))
             else:
-                try:
-                    future.set_result(fn(trainer))
-                except Exception as exc:  # noqa: BLE001  (the caller reads it from the future)
-                    future.set_exception(exc)
+                self._carry_out(call, trainer, future)
         return False
+
+    def _carry_out(self, command: Command, trainer, future: Future) -> None:
+        """``command`` on ``trainer`` (on the training thread, between steps, or on an ended trainer); its result or
+        its refusal goes to ``future``."""
+        try:
+            future.set_result(_apply(command, trainer, self._status.stage))
+        except Exception as exc:  # noqa: BLE001  (the caller reads it from the future)
+            future.set_exception(exc)
 
     def _calls_before_save(self) -> None:
         """The calls queued for the trainer whose stage ends run now, before it saves (a deletion clicked during
@@ -356,7 +436,7 @@ class LiveSession:
                 # for the stylization's)
                 self._status.last_metrics, self._status.step, self._status.total = {}, 0, 0
                 self._status.detail, self._status.seconds_left, self._status.steps_per_second = "", None, 0.0
-            self._out.put(SessionMessage("stage", stage.name, stage.name))
+            self._out.put(StageBegan(stage.name))
             self._step_times.clear()  # the last stage's step times are not this one's (an SfM "step" is minutes)
             # each stage's curves start afresh: a stylization's steps count from 0 again, and its "loss" joined to
             # the reconstruction's drew a line back across the plot
@@ -371,7 +451,7 @@ class LiveSession:
                     pending, self._pending_config = self._pending_config, {}
                 self._take_pending(stage, trainer, pending)
                 self._set(state="paused" if self._paused else "running", total=trainer.total_iters,
-                          step=getattr(trainer, "step_count", getattr(trainer, "iteration", 0)))
+                          step=trainer.status().step)
                 self._train(trainer)
                 finished = trainer.done
                 self._calls_before_save()
@@ -381,12 +461,12 @@ class LiveSession:
                 except Cancelled:  # stopped during the stage's long final passes: what there is, saved quickly
                     finished, previous = False, stage.save(trainer, False, lambda: True)
                 if previous is not None:
-                    self._out.put(SessionMessage("saved", str(previous), stage.name))
+                    self._out.put(Saved(str(previous), stage.name))
                     self.saved.append(Path(str(previous)))
                 if not finished and stage.stopped is not None:
                     line = stage.stopped(trainer)
                     self.notes.append(line)
-                    self._out.put(SessionMessage("info", line, stage.name))
+                    self._out.put(Said(line, stage.name))
                 if not finished or self._stop.is_set():  # a stop during the save: no outputs, no next stage
                     self._set(state="stopped")
                     return
@@ -395,15 +475,15 @@ class LiveSession:
             except Exception as exc:  # one line in the UI; the window and the session go on
                 line = _one_line(exc)
                 self._set(state="error", error=line)
-                self._out.put(SessionMessage("error", line, stage.name))
+                self._out.put(Failed(line, stage.name))
                 if trainer is not None:
                     try:
                         saved = stage.save(trainer, False, lambda: True)
                         if saved is not None:
-                            self._out.put(SessionMessage("saved", str(saved), stage.name))
+                            self._out.put(Saved(str(saved), stage.name))
                             self.saved.append(Path(str(saved)))
                     except Exception as exc2:  # noqa: BLE001  (the first error is the one to show)
-                        self._out.put(SessionMessage("error", f"could not save: {_one_line(exc2)}", stage.name))
+                        self._out.put(Failed(f"could not save: {_one_line(exc2)}", stage.name))
                 return
             finally:
                 with self._lock:
@@ -411,27 +491,22 @@ class LiveSession:
         self._set(state="finished" if not self._stop.is_set() else "stopped")
 
     def _take_pending(self, stage: Stage, trainer, pending: dict[str, Any]) -> None:
-        """Settings given while the trainer was being built: its config takes them before its first step."""
-        taken = {}
+        """Settings given while the trainer was being built: its first step takes them."""
         for name, value in pending.items():  # each on its own: one the trainer cannot take does not stop the rest
-            refusal = self._config_refusal(trainer, {name: value})
+            refusal = _config_refusal(trainer, {name: value})
             if refusal:
-                self._out.put(SessionMessage("error", refusal, stage.name))
-            else:
-                taken[name] = value
-        if taken:
-            trainer.config = replace(trainer.config, **taken)
+                self._out.put(Failed(refusal, stage.name))
 
     def _stage_outputs(self, stage: Stage, trainer, saved) -> None:
         """A finished stage's further outputs; their failure is one line, and the model saved and the next stage
         stand."""
         def say(line: str) -> None:
-            self._out.put(SessionMessage("info", line, stage.name))
+            self._out.put(Said(line, stage.name))
 
         try:
             stage.outputs(trainer, saved, say)
         except Exception as exc:  # noqa: BLE001  (the model is saved; the run goes on)
-            self._out.put(SessionMessage("error", f"{stage.name} outputs: {_one_line(exc)}", stage.name))
+            self._out.put(Failed(f"{stage.name} outputs: {_one_line(exc)}", stage.name))
 
     def _train(self, trainer) -> None:
         while not trainer.done and not self._stop.is_set():
@@ -455,6 +530,39 @@ class LiveSession:
                 self._status.seconds_left = left * mean
             if one_step or (self._paused and self._status.state != "paused"):
                 self._set(state="paused")
+
+
+def _config_refusal(trainer, changes: dict[str, Any]) -> str | None:
+    """``trainer.update_config(**changes)``; its refusal as one line, None when taken."""
+    update = getattr(trainer, "update_config", None)
+    if update is None:
+        return f"the {trainer.status().stage} stage takes no settings while it runs"
+    try:
+        update(**changes)
+    except ValueError as exc:
+        return str(exc)
+    return None
+
+
+def _apply(command: Command, trainer, stage: str) -> Any:
+    """What ``command`` asks of ``trainer``; a ValueError in one line when the trainer cannot do it."""
+    if isinstance(command, UseModel):
+        model = trainer.stylized_gaussians() if hasattr(trainer, "stylized_gaussians") else trainer.export_gaussians()
+        original = getattr(trainer, "original_sh", None)
+        return command.use(model, None if original is None else original.detach().cpu())
+    if isinstance(command, Keep):
+        if not trainer.status().editable:
+            raise ValueError(f"the {stage} stage's model cannot be edited")
+        if trainer.structure_version != command.structure_version:
+            raise ValueError("the trainer changed its Gaussians since the selection was made: select again")
+        return trainer.keep(command.keep)
+    if isinstance(command, SetRegion):
+        if not hasattr(trainer, "set_mask"):
+            raise ValueError(f"the {stage} stage has no region to stylize")
+        if command.mask is not None and len(command.mask) != len(trainer.gaussians):
+            raise ValueError("the selection belongs to another model than the one being stylized")
+        return trainer.set_mask(command.mask)
+    raise TypeError(f"not a command for a trainer: {command!r}")
 
 
 def _one_line(exc: BaseException) -> str:

@@ -6,8 +6,9 @@ Out of it, as out of the other stages' trainers: "step" events whose step counts
 prepared, photos whose features are extracted, pairs matched, photos registered) of ``metrics["total_iters"]``,
 the phase in words in ``message``, and ``metrics["seconds_left"]``, the phase's time left at its rate so far (-1
 before it has one); "structure" events when the mapper's model grew; "info" events with the lines the console
-prints. ``snapshot()`` is the sparse points as small round Gaussians (what the view draws) and ``cameras()`` the
-registered photos' cameras (the view's frustums), both as the mapper held them at its last registration.
+prints. ``snapshot()`` is the sparse points as small round Gaussians (what the view draws) and ``status()``
+(training/core/status.py) holds the phase's progress and the registered photos' cameras (the view's frustums), both
+as the mapper held them at its last registration.
 
 ``interrupt()`` (the session's Stop, window close, Ctrl+Q, SIGTERM) stops the run within a fraction of a second
 during feature extraction and matching and at the next registration while mapping; ``run_sfm`` then leaves no
@@ -23,6 +24,7 @@ from pathlib import Path
 import numpy as np
 
 from training.core.messages import EventSource, ModelSnapshot
+from training.core.status import TrainerStatus
 from training.model.sh_constants import SH_C0
 from training.scene.sfm import SfmProgress
 
@@ -54,6 +56,7 @@ class SfmRun(EventSource):
         self._snapshot: ModelSnapshot | None = None
         self._phase: tuple[str, str] = ("", "")  # (phase, attempt) the timing below is of
         self._phase_began = (0.0, 0)  # (time, units done) when it began
+        self._published = TrainerStatus("sfm", 0, 1, "cpu")
 
     # ------------------------------------------------------------------ the session's side
     def interrupt(self) -> None:
@@ -84,9 +87,9 @@ class SfmRun(EventSource):
                                                  self._registered)
             return self._snapshot
 
-    def cameras(self) -> tuple:
-        with self._lock:
-            return self._cameras
+    def status(self) -> TrainerStatus:
+        """The current phase's progress, the points so far and the registered cameras; any thread."""
+        return self._published
 
     # ------------------------------------------------------------------ run_sfm's side (its thread or COLMAP's)
     def _log(self, line: str) -> None:
@@ -111,6 +114,8 @@ class SfmRun(EventSource):
             if grew:
                 self._version += 1
             points = len(self._points)
+            self._published = TrainerStatus("sfm", p.done, p.total, "cpu", points, self._version, self.config,
+                                            cameras=self._cameras)
         metrics = {"total_iters": p.total, "seconds_left": left}
         if p.phase == "mapping":
             metrics.update(registered=p.done, points=points)

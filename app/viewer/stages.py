@@ -118,7 +118,8 @@ def stylize_stage(data: str | Path, style: str | Path, out: str | Path, config=N
         from training.scene.loader import load_scene
         from training.stylize.pipeline import choose_downscale
         from training.stylize.style_image import load_style_image
-        from training.stylize.trainer import StylizeConfig, Stylizer
+        from training.stylize.config import StylizeConfig
+        from training.stylize.trainer import Stylizer
 
         source = Path(model) if model is not None else previous
         if source is None:

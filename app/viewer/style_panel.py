@@ -94,15 +94,17 @@ def style_panel(doc, session, ui) -> None:
     summary = f": {cfg.preset}, {cfg.view_order} order, {cfg.schedule}" if live else ""
     if imgui.collapsing_header(f"Fixed at the start{summary}###fixed at the start"):
         fixed_settings(session, ui, cfg, live)
-    # from the session's status (this stage's last step), not the trainer: while the stylization loads, the
-    # session's trainer is still the reconstruction's, which has no plan
-    plan = status.last_metrics if live else {}
+    # this stage's stylizer's: while the stylization loads, the trainer held is still the stage before's (a
+    # reconstruction, or the last run's stylizer)
+    run = session.trainer_status("stylize") if live and status.state != "loading" else None
+    plan = run.utilisation if run is not None else {}
     if "utilisation" in plan:
         imgui.text(f"last plan: utilisation {plan['utilisation']:.3f}, "
                    f"column entropy {plan.get('column_entropy', float('nan')):.3f}")
-    if plan.get("content_to_style") is not None:
-        imgui.text(f"content/style gradient: {plan['content_to_style']:.3g} "
-                   f"({'the scene leads' if plan['content_to_style'] > 1 else 'the painting leads'})")
+    balance = run.gradient_balance if run is not None else None
+    if balance is not None:
+        imgui.text(f"content/style gradient: {balance:.3g} "
+                   f"({'the scene leads' if balance > 1 else 'the painting leads'})")
     ui.window.style_settings_h = imgui.get_cursor_pos_y() - below_painting  # the painting leaves them room
 
 
@@ -180,8 +182,8 @@ def painting(doc, session, ui) -> float:
     imgui.image(imgui.ImTextureRef(tex.painting.glo), size)
     below = imgui.get_cursor_pos_y()
     ui.window.painting_rect = (int(pos.x), int(pos.y), int(size.x), int(size.y))  # where it is on screen (tests look)
-    trainer = session.trainer
-    capacity = trainer.capacity_map() if trainer is not None and hasattr(trainer, "capacity_map") else None
+    run = session.trainer_status("stylize")
+    capacity = run.capacity if run is not None else None
     changed, ui.window.show_capacity = imgui.checkbox("capacity map", ui.window.show_capacity)
     imgui.set_item_tooltip("the column mass of the last transport plan at each style feature's place: red to yellow "
                            "where a pattern gets more than its fair share, blue where it gets less")

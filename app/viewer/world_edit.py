@@ -26,7 +26,7 @@ MIN_ALPHA = 0.5  # a pick needs this much coverage under the cursor (less: the d
 
 def trainer_shown(session) -> bool:
     """The view shows a trainer's model (running or ended), not the document's."""
-    return session.trainer is not None
+    return session.has_trainer
 
 
 def follow_world(doc, session, ui) -> None:
