@@ -73,7 +73,7 @@ def test_a_stop_during_the_final_colour_transfer_keeps_the_finished_stylization(
             trainer = inner.build(previous)
             seen["total"] = trainer.total_iters
             if when == "transfer":
-                render = trainer.render
+                render = trainer.model.render  # each view of the transfer renders through the stylized model
 
                 def counted(*args, **kwargs):  # the transfer renders every view: Stop after its second
                     if trainer.done:
@@ -82,7 +82,7 @@ def test_a_stop_during_the_final_colour_transfer_keeps_the_finished_stylization(
                             session.stop()
                     return render(*args, **kwargs)
 
-                trainer.render = counted
+                trainer.model.render = counted
             else:
                 trainer.add_listener(lambda e: session.stop() if e.kind == "step" and e.step == 3 else None)
             return trainer
