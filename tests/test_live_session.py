@@ -9,8 +9,8 @@ import time
 import numpy as np
 import pytest
 
-from app.viewer.session import LiveSession, SessionMessage, Stage
-from app.viewer.stages import reconstruct_stage
+from app.viewer.live.session import LiveSession, SessionMessage, Stage
+from app.viewer.live.stages import reconstruct_stage
 from training.reconstruct.checkpoint import load_checkpoint
 
 
@@ -200,7 +200,7 @@ def test_a_live_delete_is_taken_by_a_paused_trainer_that_just_densified(tmp_path
             app.session.single_step()
             wait(lambda: trainer.step_count == steps + 1 and app.session.status().state == "paused", 60, "a step")
         n = len(trainer.gaussians)
-        from app.viewer.runs import edit_live
+        from app.viewer.live.runs import edit_live
 
         edit_live(app.document, app.session, app.ui)
         ed = app.document.editor

@@ -9,9 +9,9 @@ from pathlib import Path
 
 from imgui_bundle import imgui
 
-from app.viewer.colour_view import export_baker
-from app.viewer.runs import submit_to_trainer
-from app.viewer.text_colours import GREY
+from app.viewer.edit.colour_view import export_baker
+from app.viewer.live.runs import submit_to_trainer
+from app.viewer.panels.text_colours import GREY
 from training.model.export import FORMATS, SUFFIXES as SUFFIX
 
 

@@ -9,7 +9,7 @@ from pathlib import Path
 
 import numpy as np
 
-from app.viewer.stages import reconstruct_stage, stylize_stage
+from app.viewer.live.stages import reconstruct_stage, stylize_stage
 
 
 def next_run_dir(out: Path, name: str = "stylized") -> Path:
