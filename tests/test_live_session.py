@@ -9,8 +9,8 @@ import time
 import numpy as np
 import pytest
 
-from app.viewer.session import Failed, LiveSession, Saved, Stage, UseModel
-from app.viewer.stages import reconstruct_stage
+from app.viewer.live.session import Failed, LiveSession, Saved, Stage, UseModel
+from app.viewer.live.stages import reconstruct_stage
 from training.reconstruct.checkpoint import load_checkpoint
 
 
@@ -198,7 +198,7 @@ def test_a_live_delete_is_taken_by_a_paused_trainer_that_just_densified(tmp_path
             wait(lambda: app.session.trainer_status().step == steps + 1 and app.session.status().state == "paused",
                  60, "a step")
         n = app.session.trainer_status().num_gaussians
-        from app.viewer.runs import edit_live
+        from app.viewer.live.runs import edit_live
 
         edit_live(app.document, app.session, app.ui)
         ed = app.document.editor

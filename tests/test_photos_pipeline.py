@@ -1,4 +1,4 @@
-"""The photos pipeline in the live session, without a window: the SfM stage (app/viewer/sfm_run.py) reports its
+"""The photos pipeline in the live session, without a window: the SfM stage (app/viewer/live/sfm_run.py) reports its
 phases through the session's status and events, a stop leaves no scene folder and says so in one line, a failure is
 one line and the session goes on, and its scene is what the reconstruction stage reads. Real fern photos, shrunk."""
 
@@ -10,9 +10,10 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from app.viewer.session import Failed, LiveSession, Said
+from app.viewer.live.session import Failed, LiveSession, Said
 from app.settings.sfm import options_from_flags
-from app.viewer.stages import reconstruct_stage, sfm_stage
+from app.viewer.live.session import LiveSession, SessionMessage
+from app.viewer.live.stages import reconstruct_stage, sfm_stage
 from training.core.messages import TrainerEvent
 from training.scene.image_io import read_image, resize_image, write_image
 from training.scene.sfm import partial_folder

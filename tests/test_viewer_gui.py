@@ -267,10 +267,10 @@ def test_edits_sliders_masks_and_exports_never_race_the_running_trainer(demo_sce
     scene_dir, style, model = demo_scene
     found = run_gui(PRELUDE + f"""
 import random
-from app.viewer import export_panel
-from app.viewer.runs import set_style_region
-from app.viewer.style_panel import set_stylize
-from app.viewer.selection import in_sphere
+from app.viewer.edit.editor import in_sphere
+from app.viewer.live.runs import set_style_region
+from app.viewer.panels import export_panel
+from app.viewer.panels.style_panel import set_stylize
 app = ViewerApp(Paths(model={str(model)!r}, data={str(scene_dir)!r}, style={str(style)!r}, out=str(OUT / "out")),
                 start="stylize", stylize_overrides={{"max_side": 48, "iters_per_view": 200}})
 rng = random.Random(7)
@@ -278,7 +278,7 @@ rng = random.Random(7)
 def test(ctx):
     wait(ctx, lambda: app.session.status().state == "running" and app.session.status().step >= 2, 180,
          "the stylizer to run")
-    from app.viewer.runs import edit_live
+    from app.viewer.live.runs import edit_live
     edit_live(app.document, app.session, app.ui)
     found["n0"] = app.document.editor.count
     counts = {{"delete": 0, "slider": 0, "region": 0, "export": 0}}
@@ -374,8 +374,8 @@ def test_a_saved_project_opens_to_the_same_model_view_and_keyframes(demo_scene, 
     scene_dir, style, model = demo_scene
     project = tmp_path / "session.splatproj"
     first = run_gui(PRELUDE + f"""
-from app.viewer import colour_view as cv
-from app.viewer.selection import in_sphere
+from app.viewer.edit import colour_view as cv
+from app.viewer.edit.editor import in_sphere
 from training.model.colour_edit import ColourAdjustment
 app = ViewerApp(Paths(model={str(model)!r}, data={str(scene_dir)!r}, style={str(style)!r}, out=str(OUT / "a")))
 
@@ -451,7 +451,7 @@ def test(ctx):
     found["rotation"] = app.view.camera.rotation.tolist()
     found["position"] = app.view.camera.position.tolist()
     found["data"], found["style"] = app.ui.paths.data, app.ui.paths.style
-    from app.viewer.colour_view import displayed
+    from app.viewer.edit.colour_view import displayed
 
     shown = displayed(app.document, app.session, ed.model)
     np.save(OUT / "means_b.npy", shown.means)
@@ -488,7 +488,7 @@ def test_a_stylization_brings_its_tab_forward_says_its_pass_and_writes_the_demo_
     found = run_gui(PRELUDE + f"""
 from app.commands.demo import WindowOutputs
 from app.viewer.layout import front_tab
-from app.viewer.runs import current_view_index, stylize_progress
+from app.viewer.live.runs import current_view_index, stylize_progress
 outputs = WindowOutputs(Path({str(scene_dir)!r}), Path({str(style)!r}), OUT / "out")
 app = ViewerApp(Paths(model={str(model)!r}, data={str(scene_dir)!r}, style={str(style)!r}, out=str(OUT / "out")),
                 stylize_overrides={{"max_side": 48, "iters_per_view": 2}}, outputs=outputs)
@@ -562,7 +562,7 @@ def test_the_style_panel_shows_no_error_while_a_stylization_loads_after_a_recons
     scene_dir, style, _ = demo_scene
     found = run_gui(PRELUDE + f"""
 import threading
-from app.viewer import runs
+from app.viewer.live import runs
 loaded = threading.Event()
 stylize_stage = runs.stylize_stage
 

@@ -17,10 +17,11 @@ import pytest
 import torch
 
 from app.project import FileRef, ModelEntry, Project, open_project, save_project
-from app.viewer import files, runs
+from app.viewer import files
 from app.viewer.app import ViewerApp
-from app.viewer.session import Failed, LiveSession, Saved, Stage
-from app.viewer.stages import reconstruct_stage, stylize_stage
+from app.viewer.live import runs
+from app.viewer.live.session import Failed, LiveSession, Saved, Stage
+from app.viewer.live.stages import reconstruct_stage, stylize_stage
 from app.viewer.state import Paths
 from tests.viewer_harness import make_demo_scene
 from training.model.gaussians import Gaussians
@@ -248,7 +249,7 @@ def test_settings_given_while_a_new_run_loads_are_that_runs_not_the_last_trainer
 def test_a_style_slider_moved_while_the_stylization_loads_is_the_runs_setting(demo_scene, vgg, tmp_path):
     """The Style panel's tau moved between Stylize and the stylizer's first step: the run uses it (before, the
     slider showed it and the run used the old value at every step)."""
-    from app.viewer.style_panel import set_stylize
+    from app.viewer.panels.style_panel import set_stylize
 
     scene_dir, style, model = demo_scene
     app = ViewerApp(Paths(out=str(tmp_path / "out")), stylize_overrides={"max_side": 32, "iters_per_view": 30})

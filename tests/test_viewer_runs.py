@@ -9,8 +9,9 @@ import time
 
 import pytest
 
-from app.viewer import files, runs
+from app.viewer import files
 from app.viewer.app import ViewerApp
+from app.viewer.live import runs
 from app.viewer.state import Paths
 from tests.viewer_harness import make_demo_scene
 from training.model.ply_io import read_ply

@@ -294,8 +294,8 @@ def test_x11_a_saved_project_opens_to_the_same_picture(demo_scene, x_server, tmp
     scene_dir, style, model = demo_scene
     first = run_gui(PRELUDE + LOOK + f"""
 import pickle
-from app.viewer import colour_view as cv
-from app.viewer.selection import in_sphere
+from app.viewer.edit import colour_view as cv
+from app.viewer.edit.editor import in_sphere
 from training.model.colour_edit import ColourAdjustment
 app = ViewerApp(Paths(model={str(model)!r}, data={str(scene_dir)!r}, style={str(style)!r}, out=str(OUT / "a")))
 

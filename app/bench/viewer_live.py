@@ -101,8 +101,8 @@ def _data(spec: dict) -> tuple[str, int | None]:
 
 
 def _trainer(spec: dict):
-    """The stage's trainer, built as the viewer's session builds it (app/viewer/stages.py)."""
-    from app.viewer.stages import reconstruct_stage, stylize_stage
+    """The stage's trainer, built as the viewer's session builds it (app/viewer/live/stages.py)."""
+    from app.viewer.live.stages import reconstruct_stage, stylize_stage
 
     data, downscale = _data(spec)
     out = Path(spec["work"]) / f"{spec['stage']}_{spec['phase']}"

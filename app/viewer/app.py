@@ -17,19 +17,20 @@ from pathlib import Path
 
 import numpy as np
 
-from app.viewer import files, photos, runs
-from app.viewer.camera_control import ViewerCamera, camera_span
-from app.viewer.colour_view import displayed
-from app.viewer.document import Document
-from app.viewer.gizmo import gizmo_keys, sync_crop_box
+from app.viewer import files
+from app.viewer.display.camera_control import ViewerCamera, camera_span
+from app.viewer.display.gizmo import gizmo_keys, sync_crop_box
+from app.viewer.display.path_video import step_video
+from app.viewer.display.view3d import View3D
+from app.viewer.edit.colour_view import displayed
+from app.viewer.edit.document import Document
+from app.viewer.edit.world_edit import follow_world, scene_up
 from app.viewer.layout import (configure, floating_windows, help_overlay, quit_app, style_back, style_forward,
                                watch_style_tab)
-from app.viewer.path_video import step_video
+from app.viewer.live import photos, runs
+from app.viewer.live.session import Failed, LiveSession, Said, Saved, StageBegan, StateChanged
 from app.viewer.platform import choose_platform, prepare_glfw
-from app.viewer.session import Failed, LiveSession, Said, Saved, StageBegan, StateChanged
 from app.viewer.state import Paths, TrainingState, Ui
-from app.viewer.view3d import View3D
-from app.viewer.world_edit import follow_world, scene_up
 from training.core.messages import ModelSnapshot, TrainerEvent
 
 IDLE_FPS = 4.0  # frames per second while nothing happens: each frame costs a running trainer CPU time

@@ -9,9 +9,9 @@ from dataclasses import replace
 import numpy as np
 from imgui_bundle import imgui
 
-from app.viewer.runs import set_style_region, stylizing
+from app.viewer.live.runs import set_style_region, stylizing
+from app.viewer.panels.text_colours import GREY
 from app.viewer.state import REGIONS
-from app.viewer.text_colours import GREY
 from training.stylize import defaults as D
 from training.stylize.config import RANGES
 

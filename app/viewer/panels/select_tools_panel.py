@@ -10,9 +10,9 @@ from __future__ import annotations
 import numpy as np
 from imgui_bundle import imgui
 
-from app.viewer import select_tools as st
-from app.viewer.gestures import shown_sh
-from app.viewer.text_colours import GREY
+from app.viewer.display.gestures import shown_sh
+from app.viewer.edit import select_tools as st
+from app.viewer.panels.text_colours import GREY
 
 
 def more_selections(doc, session, ui) -> None:

@@ -10,8 +10,8 @@ from pathlib import Path
 
 import numpy as np
 
-from app.viewer.session import Keep, SetRegion
-from app.viewer.stages import reconstruct_stage, stylize_stage
+from app.viewer.live.session import Keep, SetRegion
+from app.viewer.live.stages import reconstruct_stage, stylize_stage
 
 
 def next_run_dir(out: Path, name: str = "stylized") -> Path:

@@ -8,7 +8,7 @@ SIBR viewer and GaussianSplattingViewer do. Two ways (``transfer``) take the pic
 
 - ``pinned``: copied into page-locked host memory, then uploaded into an RGB8 texture (two copies over PCIe and a
   wait for the display's stream every frame);
-- ``interop``: copied on the GPU into a registered RGBA8 texture through CUDA-GL interop (display_interop.py,
+- ``interop``: copied on the GPU into a registered RGBA8 texture through CUDA-GL interop (interop.py,
   cuda-python), on torch's current stream, without a host copy or any synchronisation on the host.
 
 With ``fallback`` (the viewer), an interop failure (cuda-python missing, registration refused, a mapping error in
@@ -34,7 +34,7 @@ import numpy as np
 
 import moderngl
 
-from app.viewer.display_interop import InteropError, RegisteredTexture, load_runtime
+from app.viewer.display.interop import InteropError, RegisteredTexture, load_runtime
 
 DRAWABLE_MODES = ("color", "alpha")
 TRANSFERS = ("pinned", "interop")

@@ -9,10 +9,10 @@ from pathlib import Path
 
 from imgui_bundle import imgui
 
-from app.viewer.colour_view import export_baker
-from app.viewer.runs import submit_to_trainer
-from app.viewer.session import UseModel
-from app.viewer.text_colours import GREY
+from app.viewer.edit.colour_view import export_baker
+from app.viewer.live.runs import submit_to_trainer
+from app.viewer.live.session import UseModel
+from app.viewer.panels.text_colours import GREY
 from training.model.export import FORMATS, SUFFIXES as SUFFIX
 
 

@@ -12,8 +12,8 @@ from dataclasses import replace
 
 from imgui_bundle import imgui
 
-from app.viewer import colour_view as cv
-from app.viewer.text_colours import GREY
+from app.viewer.edit import colour_view as cv
+from app.viewer.panels.text_colours import GREY
 from training.model.colour_edit import RANGES
 
 REGION_LABELS = {"selection": "the selection", "all": "every Gaussian"}

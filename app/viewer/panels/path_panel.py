@@ -9,7 +9,7 @@ from __future__ import annotations
 from imgui_bundle import imgui
 
 from app.camera_path import CameraPath, dataset_path, keyframe_from, orbit_around
-from app.viewer.path_video import start_video
+from app.viewer.display.path_video import start_video
 
 
 def path_panel(doc, session, ui) -> None:

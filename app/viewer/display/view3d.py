@@ -14,7 +14,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from app.viewer.camera_control import ViewerCamera, nearest_camera
+from app.viewer.display.camera_control import ViewerCamera, nearest_camera
 from renderer_gl import gl_direct
 
 MODES = ("color", "depth", "alpha", "points", "ellipsoids")
@@ -70,9 +70,9 @@ class View3D:
         self._budget = BURST_S  # seconds of drawing the view may still spend now (a token bucket)
         self._budget_at = time.perf_counter()
         self._models: dict[int, object] = {}  # slot -> the ModelSnapshot uploaded there
-        self.display = None  # display_path.DisplayChoice, made at the first draw of a model
-        self.display_override = "auto"  # auto | a path from display_path.PATHS (or PATH/FORMAT)
-        self.cuda = None  # display_cuda.CudaDisplay when the chosen path is cuda
+        self.display = None  # choice.DisplayChoice, made at the first draw of a model
+        self.display_override = "auto"  # auto | a path from choice.PATHS (or PATH/FORMAT)
+        self.cuda = None  # cuda.CudaDisplay when the chosen path is cuda
         self.gl_thread = threading.get_ident()  # the only thread on which the context is current
 
     # ------------------------------------------------------------------ models
@@ -97,15 +97,15 @@ class View3D:
 
     # ------------------------------------------------------------------ display path
     def choose_display(self, size: tuple[int, int]) -> None:
-        """Time the ways this machine can draw the loaded model and keep the fastest (display_path.py); on software
+        """Time the ways this machine can draw the loaded model and keep the fastest (choice.py); on software
         GL there is one way and nothing is timed. A renderer with other options replaces the current one."""
-        from app.viewer.display_path import choose_display_path
+        from app.viewer.display.choice import choose_display_path
         from renderer_gl import SplatRenderer
 
         choice = choose_display_path(self.ctx, self._models[0], self.camera, size, override=self.display_override)
         self.release_cuda()
         if choice.path == "cuda":
-            from app.viewer.display_cuda import CudaDisplay
+            from app.viewer.display.cuda import CudaDisplay
 
             self.cuda = CudaDisplay(self.ctx, **choice.cuda_options())
             self.cuda.set_model(self._models[0])
@@ -269,7 +269,7 @@ class View3D:
         return True
 
     def cuda_can_draw(self, split, photo) -> bool:
-        from app.viewer.display_cuda import unsupported
+        from app.viewer.display.cuda import unsupported
 
         return unsupported(self.settings.mode, split=split is not None, photo=photo,
                            flags=self.renderer.flagged(0)) is None

@@ -7,8 +7,8 @@ from __future__ import annotations
 import numpy as np
 from imgui_bundle import imgui
 
-from app.viewer.runs import current_view_index, stylize_progress, trajectory
-from app.viewer.text_colours import GREY
+from app.viewer.live.runs import current_view_index, stylize_progress, trajectory
+from app.viewer.panels.text_colours import GREY
 
 
 def view_order_panel(doc, session, ui) -> None:

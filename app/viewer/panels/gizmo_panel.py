@@ -6,9 +6,9 @@ from __future__ import annotations
 
 from imgui_bundle import imgui
 
+from app.viewer.display.gizmo import KEYS
 from app.viewer.files import add_to_scene, open_from_dialog
-from app.viewer.gizmo import KEYS
-from app.viewer.text_colours import GREY
+from app.viewer.panels.text_colours import GREY
 
 
 def gizmo_section(doc, session, ui) -> None:

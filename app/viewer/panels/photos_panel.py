@@ -1,14 +1,14 @@
 """The New from photos dialog: the settings a photos pipeline starts with (the photos, the output folder, the
 preset, the photos' long side for SfM, the camera model, the optional painting, the reconstruction's iterations),
-then Start. File > New from photos... and a folder of photos dropped on the window open it (app/viewer/photos.py)."""
+then Start. File > New from photos... and a folder of photos dropped on the window open it (app/viewer/live/photos.py)."""
 
 from __future__ import annotations
 
 from imgui_bundle import imgui
 
 from app.viewer.files import DIALOG_FILTERS, choose_file, choose_folder
-from app.viewer.photos import start_photos
-from app.viewer.text_colours import GREY
+from app.viewer.live.photos import start_photos
+from app.viewer.panels.text_colours import GREY
 from training.scene.sfm import CAMERA_MODELS
 
 PRESETS = ("quick", "standard", "paper")

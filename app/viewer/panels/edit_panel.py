@@ -12,11 +12,11 @@ from __future__ import annotations
 import numpy as np
 from imgui_bundle import imgui
 
-from app.viewer import selection as sel
-from app.viewer.gizmo import box_value, record_box_change
-from app.viewer.runs import edit_live
+from app.viewer.display.gizmo import box_value, record_box_change
+from app.viewer.edit import editor as sel
+from app.viewer.live.runs import edit_live
+from app.viewer.panels.text_colours import GREY
 from app.viewer.state import TOOLS
-from app.viewer.text_colours import GREY
 
 
 def selection_section(doc, session, ui) -> None:

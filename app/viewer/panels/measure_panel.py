@@ -8,8 +8,8 @@ from __future__ import annotations
 import numpy as np
 from imgui_bundle import imgui
 
-from app.viewer import world_edit as we
-from app.viewer.text_colours import GREY
+from app.viewer.edit import world_edit as we
+from app.viewer.panels.text_colours import GREY
 
 HINTS = {"measure": "click two points on the model", "floor": "click three points on the floor",
          "fit": "click a point on the floor"}

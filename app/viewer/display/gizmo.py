@@ -17,10 +17,10 @@ from __future__ import annotations
 import numpy as np
 from imgui_bundle import imgui, imguizmo
 
-from app.viewer.align_points import add_pick
-from app.viewer.colour_view import displayed
-from app.viewer.gestures import on_screen, pixels, view_camera
-from app.viewer.scene_models import with_rows
+from app.viewer.display.gestures import on_screen, pixels, view_camera
+from app.viewer.edit.align_points import add_pick
+from app.viewer.edit.colour_view import displayed
+from app.viewer.edit.scene_models import with_rows
 
 OPS = ("translate", "rotate", "scale")
 KEYS = {"translate": "G", "rotate": "T", "scale": "Y"}

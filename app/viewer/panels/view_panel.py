@@ -9,9 +9,9 @@ from __future__ import annotations
 
 from imgui_bundle import imgui
 
-from app.viewer import gizmo
-from app.viewer.camera_control import camera_span
-from app.viewer.gestures import handle_gesture, handle_pick
+from app.viewer.display import gizmo
+from app.viewer.display.camera_control import camera_span
+from app.viewer.display.gestures import handle_gesture, handle_pick
 
 VIEW_WINDOW = "3D view"
 

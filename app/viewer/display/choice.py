@@ -5,7 +5,7 @@ Candidates (``PATHS``):
 - ``gl-cpu-sort``: renderer_gl with the numpy sort (every machine; the only one that suits software GL);
 - ``gl-gpu-sort``: renderer_gl with its compute-shader sort (GL 4.3, not on a software renderer, where it is far
   slower than numpy);
-- ``cuda``: the training rasterizer through gsplat, shown as a texture (app/viewer/display_cuda.py), where torch
+- ``cuda``: the training rasterizer through gsplat, shown as a texture (app/viewer/display/cuda.py), where torch
   sees a CUDA device and gsplat imports; timed with each way into the texture (``cuda/pinned``: a copy through
   pinned host memory; ``cuda/interop``: CUDA-GL interop, no host copy, where cuda-python imports and the GL context
   can be registered with CUDA).
@@ -34,7 +34,7 @@ PATHS = ("gl-cpu-sort", "gl-gpu-sort", "cuda")
 ENV = "SPLATSTYLER_DISPLAY_PATH"
 MARGIN = 0.05  # a candidate must be this much faster than an earlier one to be chosen over it
 GL_FORMATS = ("f4", "f2")  # accumulation formats without visible loss; f1 loses faint splats (docs/gpu.md)
-CUDA_TRANSFERS = ("pinned", "interop")  # how the CUDA path's picture reaches its texture (display_cuda.py)
+CUDA_TRANSFERS = ("pinned", "interop")  # how the CUDA path's picture reaches its texture (cuda.py)
 
 
 @dataclass
@@ -131,7 +131,7 @@ def unavailable(path: str, ctx) -> str | None:
 def interop_unavailable() -> str | None:
     """Why the cuda path cannot try CUDA-GL interop here (cuda-python missing), or None: whether the GL context
     can be registered is found out by trying, when the candidate is timed."""
-    from app.viewer.display_interop import InteropError, load_runtime
+    from app.viewer.display.interop import InteropError, load_runtime
 
     try:
         load_runtime()
@@ -184,7 +184,7 @@ def cuda_candidate(ctx, snap, backend: str = "cuda", transfer: str = "pinned", r
     tests; ``runtime``: cuda-python's runtime bindings, None to import them). It does not fall back: an interop
     failure is this candidate's failure, so that its time is never the pinned copy's under another name."""
     def make():
-        from app.viewer.display_cuda import CudaDisplay
+        from app.viewer.display.cuda import CudaDisplay
 
         d = CudaDisplay(ctx, backend=backend, transfer=transfer, fallback=False, runtime=runtime)
         try:

@@ -3,7 +3,7 @@ point of the other model where it belongs, three times; the similarity that maps
 three (Umeyama's least-squares solution: rotation, uniform scale, translation) moves the model, as one undo step.
 
 A pick is the surface under the cursor: the view's expected depth there (the renderer's depth pass, the same
-splats the view draws) unprojected through the view's camera (app/viewer/world_edit.py's pick, which the measure
+splats the view draws) unprojected through the view's camera (app/viewer/edit/world_edit.py's pick, which the measure
 tools use too).
 """
 
@@ -11,8 +11,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from app.viewer.gestures import view_camera
-from app.viewer.world_edit import pick
+from app.viewer.display.gestures import view_camera
+from app.viewer.edit.world_edit import pick
 
 PAIRS = 3
 

@@ -1,7 +1,7 @@
 """The stages a live session runs: structure from motion, reconstruction and stylization, built and saved as the CLI
 builds and saves them.
 
-An SfM stage runs `splatstyler sfm`'s run_sfm (app/viewer/sfm_run.py) into OUT, a COLMAP folder that appears only
+An SfM stage runs `splatstyler sfm`'s run_sfm (app/viewer/live/sfm_run.py) into OUT, a COLMAP folder that appears only
 whole: stopped or failed, it leaves nothing, and says so in one line (``Stage.stopped``); it hands OUT to the next
 stage, and its outputs are the lines the console prints at the end (the summary, the photos left out).
 
@@ -23,14 +23,14 @@ from __future__ import annotations
 from pathlib import Path
 from typing import Any
 
-from app.viewer.session import Stage
+from app.viewer.live.session import Stage
 
 
 def sfm_stage(photos: str | Path, out: str | Path, options: dict | None = None) -> Stage:
     """Structure from motion of the photos in ``photos`` into the scene folder ``out`` (``options``: run_sfm's
     settings, as app/settings/sfm.py gives them; default `splatstyler sfm`'s)."""
     from app.settings import sfm as settings
-    from app.viewer.sfm_run import SfmRun
+    from app.viewer.live.sfm_run import SfmRun
 
     out = Path(out)
 

@@ -12,10 +12,10 @@ from __future__ import annotations
 import numpy as np
 from imgui_bundle import imgui
 
-from app.viewer import select_tools as st
-from app.viewer import selection as sel
-from app.viewer import world_edit as we
-from app.viewer.colour_view import displayed
+from app.viewer.edit import select_tools as st
+from app.viewer.edit import editor as sel
+from app.viewer.edit import world_edit as we
+from app.viewer.edit.colour_view import displayed
 
 VIEW_TOOLS = ("surface brush", "colour pick")  # the tools of the Edit panel's list that select_tools.py serves
 PICK_LINE = imgui.IM_COL32(120, 255, 60, 255)  # green: apart from selection, frustums and paths (orange, yellow, cyan)

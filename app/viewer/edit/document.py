@@ -1,7 +1,7 @@
 """The edited scene as one object, with no UI: what File > Open and Save project open and save, what the panels
 edit and the 3D view shows.
 
-It holds the editor and its history (selection.py: the model shown, selected and hidden Gaussians, the undo and
+It holds the editor and its history (editor.py: the model shown, selected and hidden Gaussians, the undo and
 redo stacks), the models of the scene (the source model's raw parameters and the ledger of which file, row and
 transform each source row comes from, scene_models.py), the world transform the measure and up tools set, the
 colour edits and style strength with the original model they blend with, the dataset's cameras and the painting,
@@ -30,8 +30,8 @@ import numpy as np
 
 from app.camera_path import CameraPath
 from app.project import FileRef, ModelEntry, Project, extract_member, file_sha256, open_project
-from app.viewer.scene_models import SceneModels, appended, snapshot_arrays, snapshot_of, with_rows
-from app.viewer.selection import Editor, subset
+from app.viewer.edit.editor import Editor, subset
+from app.viewer.edit.scene_models import SceneModels, appended, snapshot_arrays, snapshot_of, with_rows
 from training.core.errors import InputError
 from training.model.colour_edit import ColourEdits
 from training.model.model_io import read_model

@@ -76,10 +76,10 @@ def choose_photos_folder(ui) -> None:
 def start_photos(doc, session, ui) -> None:
     """Start the photos pipeline with the dialog's settings (ui.photos, and the Training panel's preset, iterations
     and downscale): a new scene, the three stages in the live session."""
-    from app.stage_outputs import StageOutputs
-    from app.viewer.runs import next_run_dir
     from app.settings import sfm as sfm_settings
-    from app.viewer.stages import reconstruct_stage, sfm_stage, stylize_stage
+    from app.stage_outputs import StageOutputs
+    from app.viewer.live.runs import next_run_dir
+    from app.viewer.live.stages import reconstruct_stage, sfm_stage, stylize_stage
     from training.scene.sfm import CAMERA_MODELS, list_photos
 
     p, t = ui.photos, ui.training

@@ -11,7 +11,7 @@ synchronisation per frame. CUDA accepts 1, 2 or 4 channel textures, not RGB8: he
 
 Every failure is an ``InteropError`` with one line naming the call and CUDA's error: cuda-python missing, a driver
 older than the bindings, or a GL context that is not on the CUDA device (Mesa's GL beside an NVIDIA GPU, a second
-GPU). The caller (display_cuda.py) then copies through pinned host memory instead and says why.
+GPU). The caller (cuda.py) then copies through pinned host memory instead and says why.
 """
 
 from __future__ import annotations

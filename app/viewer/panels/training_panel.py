@@ -8,11 +8,11 @@ from __future__ import annotations
 import numpy as np
 from imgui_bundle import imgui, implot
 
+from app.viewer.display.view3d import RANGES
 from app.viewer.files import open_model
-from app.viewer.runs import start_reconstruction, start_stylization, stylize_progress
-from app.viewer.sfm_run import phase_time_left
-from app.viewer.view3d import RANGES
-from app.viewer.text_colours import RED
+from app.viewer.live.runs import start_reconstruction, start_stylization, stylize_progress
+from app.viewer.live.sfm_run import phase_time_left
+from app.viewer.panels.text_colours import RED
 
 BALANCE_PLOT_H = 150.0
 

@@ -3,7 +3,7 @@ the Edit panel's export and a saved project hold. No imgui here (colour_panel.py
 
 The edits are one ``ColourEdits`` (training/model/colour_edit.py), the document's (document.py: an extra of the
 editor's history, so undo and redo cover them with every other edit). Their regions are masks over the rows of the
-model file as opened (the editor's rows map to them through the scene's ledger, app/viewer/scene_models.py), as a
+model file as opened (the editor's rows map to them through the scene's ledger, app/viewer/edit/scene_models.py), as a
 project stores them, so ``splatstyler export --project`` bakes the same SH the view shows. They act on the first
 (opened) model's Gaussians: a model added to the scene keeps its colours (its project entry keeps its own edits). A
 row moved by the gizmo is still its file row: the edits are applied in the file's frame and the row is then turned
