@@ -101,22 +101,15 @@ class SplatRenderer:
         self.sort_tolerance_deg = float(sort_tolerance_deg)
         self._sorter = BackgroundSorter() if background_sort else None
         self._slots: dict[int, GPUSplats] = {}
-        if quads == "instanced":
-            self._splat_prog = ctx.program(vertex_shader=source("common.glsl", "project.glsl", "splat.vert.glsl"),
-                                           fragment_shader=source("splat.frag.glsl"))
-        else:
-            self._splat_prog = ctx.program(
-                vertex_shader=source("common.glsl", "project.glsl", "splat_point.vert.glsl"),
-                geometry_shader=source("splat.geom.glsl"), fragment_shader=source("splat.frag.glsl"))
+        # one splat program per fragment variant (the ellipsoids' outline, built when first drawn)
+        self._splat_progs: dict[bool, moderngl.Program] = {False: self._splat_program(outline=False)}
         self._point_prog = ctx.program(vertex_shader=source("common.glsl", "project.glsl", "points.vert.glsl"),
                                        fragment_shader=source("points.frag.glsl"))
-        self._resolve_prog = ctx.program(vertex_shader=source("fullscreen.vert.glsl"),
-                                         fragment_shader=source("resolve.frag.glsl"))
+        self._resolves: dict[tuple[int, bool, bool], tuple[moderngl.Program, moderngl.VertexArray]] = {}
         self._line_prog = ctx.program(vertex_shader=source("lines.vert.glsl"),
                                       fragment_shader=source("lines.frag.glsl"))
         corners = np.array([-1, -1, 1, -1, -1, 1, 1, 1], dtype=np.float32)
         self._corners = ctx.buffer(corners.tobytes())
-        self._fullscreen = ctx.vertex_array(self._resolve_prog, [(self._corners, "2f", "a_corner")])
         self._vaos: dict[tuple[int, str], tuple[moderngl.Buffer, moderngl.VertexArray]] = {}
         self._accum = None
         self._accum_fbo = None
@@ -124,6 +117,39 @@ class SplatRenderer:
         self._photo = ctx.texture((1, 1), 3, np.zeros(3, np.float32).tobytes(), dtype="f4")
         self._line_vbo = None
         self._line_vao = None
+
+    def _dithers(self) -> bool:
+        return self.dither and self.accum_dtype == "f1"
+
+    def _splat_program(self, outline: bool) -> moderngl.Program:
+        """The splat program with the fragment code of one kind of draw compiled in, and no other: llvmpipe runs
+        both sides of a branch on a uniform for every fragment, so the outline (derivatives, a square root) and the
+        dithering hash cost every other draw 14 % and 20 % of its frame (docs/performance.md)."""
+        defines = (("OUTLINE",) if outline else ()) + (("DITHER",) if self._dithers() else ())
+        frag = source("splat.frag.glsl", defines=defines)
+        if self.quads == "instanced":
+            return self.ctx.program(vertex_shader=source("common.glsl", "project.glsl", "splat.vert.glsl"),
+                                    fragment_shader=frag)
+        return self.ctx.program(vertex_shader=source("common.glsl", "project.glsl", "splat_point.vert.glsl"),
+                                geometry_shader=source("splat.geom.glsl"), fragment_shader=frag)
+
+    def _resolve(self, mode: int, photo_blend: bool, split: bool) -> tuple[moderngl.Program, moderngl.VertexArray]:
+        """The resolve program of one (mode, photo blended, split) and its full-screen quad, compiled when first
+        used (the viewer uses two or three of them)."""
+        key = (mode, photo_blend, split)
+        if key not in self._resolves:
+            defines = (f"RESOLVE_MODE {mode}",) + (("PHOTO_BLEND",) if photo_blend else ()) + \
+                (("SPLIT",) if split else ())
+            prog = self.ctx.program(vertex_shader=source("fullscreen.vert.glsl"),
+                                    fragment_shader=source("resolve.frag.glsl", defines=defines))
+            self._resolves[key] = (prog, self.ctx.vertex_array(prog, [(self._corners, "2f", "a_corner")]))
+        return self._resolves[key]
+
+    def _splat_prog_for(self, mode: str) -> moderngl.Program:
+        outline = mode == "ellipsoids"
+        if outline not in self._splat_progs:
+            self._splat_progs[outline] = self._splat_program(outline)
+        return self._splat_progs[outline]
 
     # ----------------------------------------------------------------------------------------------- models
     def set_splats(self, means, scales, quats, opacities, sh, sh_degree: int | None = 0, slot: int = 0) -> None:
@@ -245,11 +271,11 @@ class SplatRenderer:
             return cached[1]
         if cached is not None:
             cached[1].release()
-        if kind == "splat" and self.quads == "instanced":
-            vao = self.ctx.vertex_array(self._splat_prog, [(self._corners, "2f", "a_corner"),
-                                                           (index, "u/i", "a_index")])
-        elif kind == "splat":
-            vao = self.ctx.vertex_array(self._splat_prog, [(index, "u", "a_index")])
+        if kind != "points" and self.quads == "instanced":
+            vao = self.ctx.vertex_array(self._splat_prog_for(kind), [(self._corners, "2f", "a_corner"),
+                                                                     (index, "u/i", "a_index")])
+        elif kind != "points":
+            vao = self.ctx.vertex_array(self._splat_prog_for(kind), [(index, "u", "a_index")])
         else:
             vao = self.ctx.vertex_array(self._point_prog, [(index, "u", "a_index")])
         self._vaos[key] = (index, vao)
@@ -259,7 +285,7 @@ class SplatRenderer:
         model = self._model(slot)
         if model.n == 0:
             return 0
-        prog = self._point_prog if mode == "points" else self._splat_prog
+        prog = self._point_prog if mode == "points" else self._splat_prog_for(mode)
         model.bind(prog)
         _set(prog, "u_sh_degree", int(min(max_sh_degree, model.sh_degree)))
         _set(prog, "u_view", _mat4(v.world_to_camera))
@@ -271,7 +297,7 @@ class SplatRenderer:
         _set(prog, "u_far", params["far"])
         _set(prog, "u_eps2d", params["eps2d"])
         _set(prog, "u_tint", params["tint"])
-        _set(prog, "u_dither", 1.0 / 255.0 if self.dither and self.accum_dtype == "f1" else 0.0)
+        _set(prog, "u_dither", 1.0 / 255.0 if self._dithers() else 0.0)
         if mode == "points":
             _set(prog, "u_point_size", params["point_size"])
             self.ctx.enable(moderngl.PROGRAM_POINT_SIZE)
@@ -280,10 +306,11 @@ class SplatRenderer:
             _set(prog, "u_mode", _SPLAT_MODE[mode])
             _set(prog, "u_outline_sigma", params["outline_sigma"])
             index, count = model.lod_buffer(lod) if lod < 1.0 else (None, model.n)
+            kind = "ellipsoids" if mode == "ellipsoids" else "splat"
             if self.quads == "instanced":
-                gl_direct.draw(self._vao(slot, "splat", index), moderngl.TRIANGLE_STRIP, 4, instances=count)
+                gl_direct.draw(self._vao(slot, kind, index), moderngl.TRIANGLE_STRIP, 4, instances=count)
             else:
-                gl_direct.draw(self._vao(slot, "splat", index), moderngl.POINTS, count)
+                gl_direct.draw(self._vao(slot, kind, index), moderngl.POINTS, count)
             return count
         return model.n
 
@@ -381,20 +408,21 @@ class SplatRenderer:
         self._accum.filter = (moderngl.LINEAR, moderngl.LINEAR)
         self._accum.use(location=0)
         self._photo.use(location=1)
-        prog = self._resolve_prog
-        _set(prog, "u_accum", 0)
-        _set(prog, "u_photo", 1)
-        _set(prog, "u_background", tuple(float(c) for c in background[:3]))
-        _set(prog, "u_depth_range", tuple(depth_range) if depth_range is not None else (0.0, 1.0))
-        _set(prog, "u_divider_color", tuple(map(float, divider_color)))
         for i, rect in enumerate(rects):
             framebuffer.viewport = rect
             photo_only = photo == "side" and i == 1
-            _set(prog, "u_mode", 3 if photo_only else _RESOLVE_MODE[mode])
-            _set(prog, "u_photo_alpha", float(photo_alpha) if photo == "blend" else 0.0)
-            _set(prog, "u_split", float(split) if split is not None and not photo_only else -1.0)
+            prog, quad = self._resolve(3 if photo_only else _RESOLVE_MODE[mode],
+                                       photo == "blend" and photo_alpha > 0 and not photo_only,
+                                       split is not None and not photo_only)
+            _set(prog, "u_accum", 0)
+            _set(prog, "u_photo", 1)
+            _set(prog, "u_background", tuple(float(c) for c in background[:3]))
+            _set(prog, "u_depth_range", tuple(depth_range) if depth_range is not None else (0.0, 1.0))
+            _set(prog, "u_divider_color", tuple(map(float, divider_color)))
+            _set(prog, "u_photo_alpha", float(photo_alpha))
+            _set(prog, "u_split", float(split) if split is not None else -1.0)
             _set(prog, "u_target_size", (float(rect[2]), float(rect[3])))
-            self._fullscreen.render(moderngl.TRIANGLE_STRIP)
+            quad.render(moderngl.TRIANGLE_STRIP)
         if overlays is not None:
             framebuffer.viewport = rects[0]
             self.draw_lines(v, overlays, splat_params.get("near", C.NEAR_PLANE))
@@ -458,7 +486,8 @@ class SplatRenderer:
             fbo.release()
             tex.release()
         self._accum_targets.clear()
-        for obj in (self._photo, self._line_vao, self._line_vbo, self._fullscreen,
-                    self._corners, self._splat_prog, self._point_prog, self._resolve_prog, self._line_prog):
+        for obj in (self._photo, self._line_vao, self._line_vbo, *(q for _, q in self._resolves.values()),
+                    self._corners, *self._splat_progs.values(), self._point_prog,
+                    *(p for p, _ in self._resolves.values()), self._line_prog):
             if obj is not None:
                 obj.release()

@@ -17,6 +17,7 @@ struct Splat {
     vec2 mean;     // pixels
     vec2 axis1;    // quad half-axes in pixels
     vec2 axis2;
+    vec2 sigmas;   // the same half-axes in standard deviations along them (the quad in whitened coordinates)
     vec3 conic;    // inverse 2D covariance (a, b, c)
     vec4 color;    // rgb (or camera depth in .r), opacity
 };
@@ -55,12 +56,14 @@ bool project_splat(int gid, out Splat s) {
     // Principal axes of Sigma2d: the quad is the ellipse's bounding rectangle along them.
     float mid = 0.5 * (a + c);
     float rad = sqrt(max(0.25 * (a - c) * (a - c) + b * b, 0.0));
-    float l1 = mid + rad, l2 = max(mid - rad, 1e-12);
+    // l1 l2 = det: the small eigenvalue from it, not from mid - rad, which cancels for thin Gaussians
+    float l1 = mid + rad, l2 = max(det / l1, 1e-12);
     vec2 e1 = rad > 0.0 ? normalize(a >= c ? vec2(l1 - c, b) : vec2(b, l1 - a)) : vec2(1.0, 0.0);
     // The margin covers float rounding of the extent; in outline mode a pixel for the line's width.
     float margin = u_mode == 2 ? 1.5 : 0.01;
     s.axis1 = (extend * sqrt(l1) + margin) * e1;
     s.axis2 = (extend * sqrt(l2) + margin) * vec2(-e1.y, e1.x);
+    s.sigmas = vec2(extend + margin / sqrt(l1), extend + margin / sqrt(l2));
     if (u_mode == 1) {
         s.color = vec4(p.z, 0.0, 0.0, opacity);
     } else {

@@ -3,11 +3,10 @@
 in vec2 v_uv;
 uniform sampler2D u_accum;   // rgb = sum f_i a_i T_i (f = colour, or depth in .r), a = accumulated alpha
 uniform sampler2D u_photo;   // stored top row first, so sampled with v flipped
-uniform int u_mode;          // 0 colour, 1 depth, 2 alpha, 3 photo only
 uniform vec3 u_background;
 uniform vec2 u_depth_range;  // near, far of the colour map
-uniform float u_photo_alpha; // 0: no photo; blend weight otherwise
-uniform float u_split;       // divider position in 0..1 of the width; < 0: none
+uniform float u_photo_alpha; // PHOTO_BLEND: the photo's blend weight
+uniform float u_split;       // SPLIT: divider position in 0..1 of the width
 uniform vec4 u_divider_color;
 uniform vec2 u_target_size;  // viewport size in pixels (for a one-pixel divider)
 out vec4 f_color;
@@ -27,28 +26,30 @@ vec3 depth_colormap(float t) {
     return mix(k3, k4, t - 3.0);
 }
 
+// Compiled per (RESOLVE_MODE, PHOTO_BLEND, SPLIT) (renderer.py): llvmpipe runs every branch on a uniform for
+// every pixel, so one program with all of them cost an empty 1280x720 frame half its time.
 void main() {
-    vec3 photo = texture(u_photo, vec2(v_uv.x, 1.0 - v_uv.y)).rgb;
-    if (u_mode == 3) {
-        f_color = vec4(photo, 1.0);
-        return;
-    }
+#if RESOLVE_MODE == 3
+    f_color = vec4(texture(u_photo, vec2(v_uv.x, 1.0 - v_uv.y)).rgb, 1.0);
+#else
     vec4 acc = texture(u_accum, v_uv);
     float alpha = clamp(acc.a, 0.0, 1.0);
-    vec3 rgb;
-    if (u_mode == 1) {
-        float depth = acc.r / max(acc.a, 1e-10);
-        float t = (depth - u_depth_range.x) / max(u_depth_range.y - u_depth_range.x, 1e-12);
-        rgb = mix(u_background, depth_colormap(t), alpha);
-    } else if (u_mode == 2) {
-        rgb = vec3(alpha);
-    } else {
-        rgb = acc.rgb + (1.0 - alpha) * u_background;
-    }
-    if (u_photo_alpha > 0.0) rgb = mix(rgb, photo, u_photo_alpha);
-    if (u_split >= 0.0) {
-        float px = v_uv.x * u_target_size.x;
-        if (abs(px - u_split * u_target_size.x) <= 1.0) rgb = mix(rgb, u_divider_color.rgb, u_divider_color.a);
-    }
+#if RESOLVE_MODE == 1
+    float depth = acc.r / max(acc.a, 1e-10);
+    float t = (depth - u_depth_range.x) / max(u_depth_range.y - u_depth_range.x, 1e-12);
+    vec3 rgb = mix(u_background, depth_colormap(t), alpha);
+#elif RESOLVE_MODE == 2
+    vec3 rgb = vec3(alpha);
+#else
+    vec3 rgb = acc.rgb + (1.0 - alpha) * u_background;
+#endif
+#ifdef PHOTO_BLEND
+    rgb = mix(rgb, texture(u_photo, vec2(v_uv.x, 1.0 - v_uv.y)).rgb, u_photo_alpha);
+#endif
+#ifdef SPLIT
+    float px = v_uv.x * u_target_size.x;
+    if (abs(px - u_split * u_target_size.x) <= 1.0) rgb = mix(rgb, u_divider_color.rgb, u_divider_color.a);
+#endif
     f_color = vec4(clamp(rgb, 0.0, 1.0), 1.0);
+#endif
 }

@@ -3,7 +3,7 @@ in vec2 a_corner;      // (+-1, +-1), triangle strip
 in uint a_index;       // per instance: the Gaussian drawn
 
 out vec2 v_d;          // pixel offset from the projected mean
-flat out vec3 v_conic;
+out vec2 v_w;          // the offset whitened (q = d^T Sigma^-1 d = |w|^2), times sqrt(log2(e) / 2)
 flat out vec4 v_color;
 
 void main() {
@@ -15,6 +15,6 @@ void main() {
     vec2 offset = a_corner.x * s.axis1 + a_corner.y * s.axis2;
     gl_Position = to_clip(s.mean + offset);
     v_d = offset;
-    v_conic = s.conic;
+    v_w = a_corner * s.sigmas * WHITE_SCALE;
     v_color = s.color;
 }

@@ -4,7 +4,7 @@ in uint a_index;
 
 out vec2 g_mean;
 out vec4 g_axes;
-out vec3 g_conic;
+out vec2 g_sigmas;
 out vec4 g_color;
 out float g_keep;
 
@@ -14,6 +14,6 @@ void main() {
     g_keep = project_splat(int(a_index), s) ? 1.0 : 0.0;
     g_mean = s.mean;
     g_axes = vec4(s.axis1, s.axis2);
-    g_conic = s.conic;
+    g_sigmas = s.sigmas;
     g_color = s.color;
 }
