@@ -4,8 +4,8 @@ For each N (default 10k, 100k, 500k, 1M) at one size (default 1280x720), in one 
 context (EGL unless ``--backend``), on ``app.bench.raster``'s scene (a fixed amount of "stuff" whatever N):
 
 - ``frame_ms``: a frame with the camera still (no sort): splat pass into the float accumulation target, resolve
-  into an RGBA8 framebuffer, ``glFinish``; ``frame_half_ms`` the same at half resolution (the viewer's size while
-  the camera moves); ``frame_moving_ms`` at half resolution drawing the 35% most important Gaussians (the viewer's
+  into an RGBA8 framebuffer, ``glFinish``; ``frame_cpu_ms`` the process's CPU time over that frame (all cores);
+  ``frame_half_ms`` the same at half resolution (the viewer's size while the camera moves); ``frame_moving_ms`` at half resolution drawing the 35% most important Gaussians (the viewer's
   moving-camera preview on software GL); ``frame_f2_ms`` with a half-float accumulation target, ``frame_f1_ms`` with an
   8-bit one (dithered, the default for f1), ``frame_f1_plain_ms`` 8-bit without dithering (these four frame
   columns are timed round-robin, one renderer each); ``frame_instanced_ms`` (or
@@ -82,15 +82,24 @@ def _median_ms(fn, repeat: int) -> float:
 
 
 def _interleaved_median_ms(fns: dict, repeat: int) -> dict[str, float]:
-    """Median milliseconds of each function, run in turn (one warm-up round first)."""
+    """Median milliseconds of each function, run in turn (one warm-up round first); for ``frame_ms`` also the
+    process's CPU time, ``frame_cpu_ms`` (llvmpipe draws on every core: on a machine other jobs share, a steadier
+    figure than the wall time; on free cores frame_ms is about frame_cpu_ms / cores)."""
     times = {k: [] for k in fns}
+    cpu = []
     for rnd in range(max(1, repeat) + 1):
         for key, fn in fns.items():
+            c0 = time.process_time()
             t0 = time.perf_counter()
             fn()
             if rnd > 0:
                 times[key].append(time.perf_counter() - t0)
-    return {k: 1000.0 * statistics.median(v) for k, v in times.items()}
+                if key == "frame_ms":
+                    cpu.append(time.process_time() - c0)
+    out = {k: 1000.0 * statistics.median(v) for k, v in times.items()}
+    if cpu:
+        out["frame_cpu_ms"] = 1000.0 * statistics.median(cpu)
+    return out
 
 
 def _snapshot_and_camera(scene, w: int, h: int):
