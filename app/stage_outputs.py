@@ -7,7 +7,7 @@ saved at its end, so no step is taken; ``stylization`` the stylization's renders
 before/after sheet: the stylize command's job (training/stylize/pipeline.py ``stylize_to_folder``) resumed from a
 checkpoint of the finished stylizer, with the settings it ended with (the sliders may have moved them). Each line is
 said in the window and printed in the console. The demo's window adds its own files (app/commands/demo.py), the
-photos pipeline uses these as they are (app/viewer/photos.py).
+photos pipeline uses these as they are (app/viewer/live/photos.py).
 """
 
 from __future__ import annotations

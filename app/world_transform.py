@@ -7,7 +7,7 @@ whole project uses (``camera_control.py``: a photo's up is its -y axis). Both co
 ``x -> s R x + t``, the project's ``world`` (app/project.py), applied to the model's Gaussians
 (training/model/transform.py) and to the dataset cameras, so the photos still line up with the model.
 
-No GL and no imgui here: the viewer (app/viewer/world_edit.py) and the tests use these functions alike.
+No GL and no imgui here: the viewer (app/viewer/edit/world_edit.py) and the tests use these functions alike.
 """
 
 from __future__ import annotations

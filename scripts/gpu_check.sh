@@ -281,7 +281,7 @@ for name in ("gsplat", "moderngl", "cuda.bindings", "OpenImageIO", "pycolmap", "
 from renderer_gl import create_context
 ctx = create_context("egl")
 print("GL (EGL):", ctx.info["GL_VENDOR"], "|", ctx.info["GL_RENDERER"], "|", ctx.info["GL_VERSION"])
-from app.viewer.display_path import interop_unavailable
+from app.viewer.display.choice import interop_unavailable
 print("CUDA-GL interop:", interop_unavailable() or "cuda-python imports; registration is tried by the tests")
 EOF
 }

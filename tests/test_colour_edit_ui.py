@@ -89,7 +89,7 @@ def test_brightness_on_a_selection_changes_its_pixels_only_and_undo_restores(dem
     scene_dir, _, model = demo_scene
     found = run_gui(PRELUDE + STILL + f"""
 import pickle
-from app.viewer.selection import in_sphere
+from app.viewer.edit.editor import in_sphere
 app = ViewerApp(Paths(model={str(model)!r}, data={str(scene_dir)!r}, out=str(OUT / "out")))
 install_reader(app)
 
@@ -146,9 +146,9 @@ def test_selection_tools_pick_what_they_should(demo_scene, tmp_path):
     found = run_gui(PRELUDE + STILL + f"""
 import pickle
 from imgui_bundle import imgui
-from app.viewer import select_tools as st
-from app.viewer.gestures import view_camera
-from app.viewer.selection import in_brush
+from app.viewer.display.gestures import view_camera
+from app.viewer.edit import select_tools as st
+from app.viewer.edit.editor import in_brush
 app = ViewerApp(Paths(model={str(model)!r}, data={str(scene_dir)!r}, out=str(OUT / "out")))
 install_reader(app)
 
@@ -225,7 +225,7 @@ Path(os.environ["RESULT"]).write_text(json.dumps(found))
     from scipy.spatial import cKDTree
 
     from app.render_inputs import load_model_arrays
-    from app.viewer.select_tools import weights_at
+    from app.viewer.edit.select_tools import weights_at
 
     from training.model.ply_io import read_ply
     from training.model.sh_constants import SH_C0
@@ -297,10 +297,10 @@ def test_export_of_an_opened_stylized_model_is_what_export_project_bakes(stylize
     bit; undo takes the last drag back."""
     import torch
 
-    from app.viewer import colour_view as cv
     from app.viewer.app import ViewerApp
-    from app.viewer.export_panel import write
+    from app.viewer.edit import colour_view as cv
     from app.viewer.files import open_model, open_project, save_project
+    from app.viewer.panels.export_panel import write
     from app.viewer.state import Paths
     from training.model.colour_edit import ColourAdjustment
     from training.model.ply_io import read_ply
@@ -402,7 +402,7 @@ def test(ctx):
     open_window(ctx, "Training")
     ctx.item_click("Open##run0")
     found["opened"] = app.ui.paths.model
-    found["running_trainer"] = app.session.trainer is not None
+    found["running_trainer"] = app.session.has_trainer
     np.save(OUT / "opened_run.npy", still(ctx))
     open_window(ctx, "Colour")
     ctx.yield_(2)

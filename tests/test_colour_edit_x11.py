@@ -29,7 +29,7 @@ def test_x11_colour_and_selection_tools_on_screen(stylized_pair, demo_scene, x_s
 import pickle
 from imgui_bundle import imgui
 from PIL import Image
-from app.viewer.selection import in_sphere
+from app.viewer.edit.editor import in_sphere
 app = ViewerApp(Paths(model={str(stylized)!r}, data={str(scene_dir)!r}, out=str(OUT / "out")))
 
 def shot(name, ctx):
@@ -78,8 +78,8 @@ def test(ctx):
     ctx.item_click("Select by size")
     found["n_size"] = int(ed.selected.sum())
     shot("size_range", ctx)
-    from app.viewer.gestures import view_camera
-    from app.viewer.select_tools import pick
+    from app.viewer.display.gestures import view_camera
+    from app.viewer.edit.select_tools import pick
     seed = pick(ed.model, view_camera(app.ui), w * 0.5, h * 0.4)   # the splat drawn most at that pixel
     ed.select(np.arange(ed.count) == seed, "set")
     for _ in range(3):

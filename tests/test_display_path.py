@@ -1,4 +1,4 @@
-"""The CUDA display path (app/viewer/display_cuda.py) through the same code on the torch backend on CPU, against
+"""The CUDA display path (app/viewer/display/cuda.py) through the same code on the torch backend on CPU, against
 the GL renderer's picture for the same viewer camera; and the display-path chooser's decisions."""
 
 from __future__ import annotations
@@ -11,11 +11,11 @@ from dataclasses import replace
 import numpy as np
 import pytest
 
-from app.viewer.camera_control import ViewerCamera
-from app.viewer.display_cuda import CudaDisplay, unsupported
-from app.viewer.display_interop import InteropError
-from app.viewer.display_path import (Candidate, DisplayChoice, choose_display_path, cuda_candidate,
+from app.viewer.display.camera_control import ViewerCamera
+from app.viewer.display.choice import (Candidate, DisplayChoice, choose_display_path, cuda_candidate,
                                      default_candidates, gl_candidate, pick)
+from app.viewer.display.cuda import CudaDisplay, unsupported
+from app.viewer.display.interop import InteropError
 from renderer_gl import Offscreen, SplatRenderer, create_context
 from tests.gl_scenes import psnr
 from training.core.messages import ModelSnapshot
@@ -244,7 +244,7 @@ def _registration_refused(ctx) -> str | None:
     """Why CUDA cannot register this GL context's textures here, or None where it can."""
     import torch
 
-    from app.viewer.display_path import interop_unavailable
+    from app.viewer.display.choice import interop_unavailable
 
     if not torch.cuda.is_available():
         return "torch sees no CUDA device"
@@ -414,7 +414,7 @@ def test_without_cuda_python_the_display_copies_through_the_host_and_says_why(ct
     chooser skips the interop candidate with the reason, and the Scene panel's note says it."""
     for name in ("cuda", "cuda.bindings", "cuda.bindings.runtime"):
         monkeypatch.setitem(sys.modules, name, None)  # import fails, as where the package is not installed
-    from app.viewer.display_path import interop_unavailable
+    from app.viewer.display.choice import interop_unavailable
 
     why = interop_unavailable()
     assert why.startswith("cuda-python is not installed")
@@ -441,7 +441,7 @@ def test_a_gl_context_cuda_cannot_register_falls_back_to_the_pinned_copy(ctx):
     """cuda-python present and the registration refused by the driver: here, a machine without an NVIDIA driver
     (CUDA's answer is cudaErrorInsufficientDriver or cudaErrorNoDevice); on a GPU with Mesa's GL beside it, the same
     call refuses the Mesa texture."""
-    from app.viewer.display_path import interop_unavailable
+    from app.viewer.display.choice import interop_unavailable
 
     why = interop_unavailable()
     if why:

@@ -7,10 +7,12 @@ trainer's checkpoint is its own (the file format is training/core's), and the po
 Within the app: no module imports another in a circle (an import inside a function or through importlib counts as
 much as one at the top, so none can be there to dodge a circle, and an importlib name the test cannot read is
 refused); the viewer's window (app/viewer/app.py) is its top, imported by nothing of the viewer; a panel
-(app/viewer/*_panel.py) is a leaf, imported only by the layout and importing no other panel; only app/cli.py imports
-the commands, and nothing imports app/cli.py but ``python -m app`` (app/__main__.py): the CLI is a front-end, not a
-library; the edited document and what it is made of import no UI; and a module's ``_private`` names are used only
-inside it."""
+(app/viewer/panels/*_panel.py, and a panel lives nowhere else) is a leaf, imported only by the layout, and nothing in
+panels/ imports a panel; only app/cli.py imports the commands, and nothing imports app/cli.py but ``python -m app``
+(app/__main__.py): the CLI is a front-end, not a library; the edited document and what it is made of (app/viewer/edit),
+the live session (app/viewer/live) and the UI state import no UI and no GL; a module's ``_private`` names are used
+only inside it; and nothing in the app but the live session (app/viewer/live/session.py) reaches a trainer (no
+``.trainer``): the session is the one door into a trainer, typed commands in, the trainer's status out."""
 
 from __future__ import annotations
 
@@ -187,8 +189,8 @@ def cycles(graph: dict[str, set[str]]) -> list[list[str]]:
 
 
 PANEL = "_panel"
-NO_UI = ("app.viewer.document", "app.viewer.scene_models", "app.viewer.selection", "app.viewer.state",
-         "app.viewer.colour_view", "app.viewer.world_edit", "app.viewer.session", "app.viewer.stages")
+PANELS = "app.viewer.panels"  # the panels' package: every panel is here, and nothing here imports a panel
+NO_UI = ("app.viewer.edit", "app.viewer.live", "app.viewer.state")  # packages and modules without UI or GL
 
 
 def private_uses(path: Path, known: dict[str, Path]) -> list[tuple[int, str]]:
@@ -230,27 +232,42 @@ def cli_imports(known: dict[str, Path]) -> list[str]:
     return list(dict.fromkeys(out))  # "from app.cli import main" names app.cli twice
 
 
+DOOR = "app.viewer.live.session"  # the one module of the app that holds a running trainer
+
+
+def trainer_reaches(path: Path) -> list[int]:
+    """Lines that read a ``.trainer`` attribute (a session's trainer, or anything's)."""
+    tree = ast.parse(path.read_text(), filename=str(path))
+    return sorted({node.lineno for node in ast.walk(tree)
+                   if isinstance(node, ast.Attribute) and node.attr == "trainer"})
+
+
 def app_violations() -> list[str]:
     known = project_modules()
     graph = app_graph(known)
     out = [f"import circle: {' -> '.join(c)}" for c in cycles(graph)] + cli_imports(known)
     for name, imported in sorted(graph.items()):
-        leaf = name.rpartition(".")[2]
+        if name.endswith(PANEL) and not is_under(name, PANELS):
+            out.append(f"{name} is a panel outside {PANELS}: the panels live together")
         for m in sorted(imported):
             where = f"{name} imports {m}"
             if m == "app.viewer.app" and is_under(name, "app.viewer"):
                 out.append(f"{where}: the window is the viewer's top, nothing of the viewer imports it")
-            if m.endswith(PANEL) and leaf.endswith(PANEL):
+            if m.endswith(PANEL) and is_under(name, PANELS):
                 out.append(f"{where}: panels do not import each other")
             elif m.endswith(PANEL) and name != "app.viewer.layout":
                 out.append(f"{where}: only the layout puts panels in the window")
             if is_under(m, "app.commands") and name != "app.cli" and not is_under(name, "app.commands"):
                 out.append(f"{where}: only app/cli.py imports the commands")
-        if name in NO_UI:
+        if any(is_under(name, n) for n in NO_UI):
             for line, imported_name in imports_of(known[name]):
-                if any(is_under(imported_name, gui) for gui in GUI_MODULES):
-                    out.append(f"{name}:{line} imports {imported_name}: the document and its parts have no UI")
+                if any(is_under(imported_name, gui) for gui in GUI_MODULES + ("renderer_gl",)):
+                    out.append(f"{name}:{line} imports {imported_name}: the document and its parts, the live "
+                               "session and the UI state have no UI")
     for name, path in sorted(known.items()):
+        if is_under(name, "app") and name != DOOR:
+            out += [f"{name}:{line} reaches .trainer: the live session is the one door into a trainer (read its "
+                    "trainer_status(), submit a command)" for line in trainer_reaches(path)]
         if is_under(name, "app"):
             for line, used in private_uses(path, known):
                 if resolve(used.rpartition(".")[0], known) != name:
@@ -311,21 +328,26 @@ def test_the_app_has_no_circles_and_its_panels_are_leaves():
 
 def test_the_app_checker_sees_a_circle_a_panel_import_and_a_private_name(tmp_path, monkeypatch):
     """Planted in a copy of the tree: a circle closed by an import inside a function, one closed through importlib
-    with a name built on a prefix, a panel that imports another, a document that imports imgui, another module's
-    private name, the CLI imported as a library, and importlib with a name the checker cannot read; each is
-    reported."""
+    with a name built on a prefix, a panel that imports another, a panel outside the panels' package, a document and
+    a live-session module that import UI, another module's private name, the CLI imported as a library, importlib
+    with a name the checker cannot read, and a panel that reaches into the session's trainer; each is reported."""
     import shutil
 
     for top in ("app", "training", "renderer_gl", "assets"):
         shutil.copytree(ROOT / top, tmp_path / top, ignore=shutil.ignore_patterns("__pycache__"))
     viewer = tmp_path / "app" / "viewer"
-    (viewer / "selection.py").write_text((viewer / "selection.py").read_text()
-                                         + "\n\ndef dodge():\n    from app.viewer.document import Document\n")
-    (viewer / "colour_panel.py").write_text((viewer / "colour_panel.py").read_text()
-                                            + "\nfrom app.viewer.style_panel import heatmap\n")
-    (viewer / "document.py").write_text((viewer / "document.py").read_text() + "\nfrom imgui_bundle import imgui\n")
+    editor = viewer / "edit" / "editor.py"
+    editor.write_text(editor.read_text() + "\n\ndef dodge():\n    from app.viewer.edit.document import Document\n")
+    (viewer / "panels" / "colour_panel.py").write_text((viewer / "panels" / "colour_panel.py").read_text()
+                                                       + "\nfrom app.viewer.panels.style_panel import heatmap\n")
+    (viewer / "edit" / "document.py").write_text((viewer / "edit" / "document.py").read_text()
+                                                 + "\nfrom imgui_bundle import imgui\n")
+    (viewer / "live" / "runs.py").write_text((viewer / "live" / "runs.py").read_text() + "\nimport renderer_gl\n")
+    (viewer / "stray_panel.py").write_text("")
     (viewer / "files.py").write_text((viewer / "files.py").read_text()
-                                     + "\nfrom app.viewer.session import _one_line\n")
+                                     + "\nfrom app.viewer.live.session import _one_line\n")
+    (viewer / "panels" / "gizmo_panel.py").write_text((viewer / "panels" / "gizmo_panel.py").read_text()
+                                                      + "\n\ndef peek(session):\n    return session.trainer.config\n")
     evaluate = tmp_path / "app" / "evaluate"
     (evaluate / "grid.py").write_text((evaluate / "grid.py").read_text() + "\n\ndef hidden(name):\n"
                                       "    import importlib\n    return importlib.import_module(f'app.commands.{name}')"
@@ -337,11 +359,15 @@ def test_the_app_checker_sees_a_circle_a_panel_import_and_a_private_name(tmp_pat
                for v in found), found
     assert any(v.startswith("app.evaluate.grid:") and "imports app.cli: the CLI is a front-end" in v for v in found)
     assert any(v.startswith("app.evaluate.grid:") and "by a name computed at run time" in v for v in found), found
-    assert any(v.startswith("import circle:") and "app.viewer.selection" in v and "app.viewer.document" in v
+    assert any(v.startswith("import circle:") and "app.viewer.edit.editor" in v and "app.viewer.edit.document" in v
                for v in found), found
-    assert any("colour_panel imports app.viewer.style_panel: panels do not import each other" in v for v in found)
-    assert any("app.viewer.document:" in v and "imgui_bundle" in v for v in found), found
-    assert any("app.viewer.files:" in v and "uses app.viewer.session._one_line" in v for v in found), found
+    assert any("colour_panel imports app.viewer.panels.style_panel: panels do not import each other" in v
+               for v in found), found
+    assert any("app.viewer.stray_panel is a panel outside app.viewer.panels" in v for v in found), found
+    assert any("app.viewer.edit.document:" in v and "imgui_bundle" in v for v in found), found
+    assert any("app.viewer.live.runs:" in v and "imports renderer_gl" in v for v in found), found
+    assert any("app.viewer.files:" in v and "uses app.viewer.live.session._one_line" in v for v in found), found
+    assert any(v.startswith("app.viewer.panels.gizmo_panel:") and "reaches .trainer" in v for v in found), found
 
 
 @pytest.mark.parametrize("module", ["training.stylize.defaults", "training.raster.constants",

@@ -9,8 +9,8 @@ import time
 import numpy as np
 import pytest
 
-from app.viewer.session import LiveSession, SessionMessage, Stage
-from app.viewer.stages import reconstruct_stage
+from app.viewer.live.session import Failed, LiveSession, Saved, Stage, UseModel
+from app.viewer.live.stages import reconstruct_stage
 from training.reconstruct.checkpoint import load_checkpoint
 
 
@@ -36,31 +36,30 @@ def test_pause_step_resume_stop_saves_a_checkpoint(scene_dir, tmp_path):
         wait(lambda: session.status().step >= 3, 120, "three steps")
         session.pause()
         wait(lambda: session.status().state == "paused", 30, "the pause")
-        paused_at = session.trainer.step_count
+        paused_at = session.trainer_status().step
         time.sleep(0.5)
-        assert session.trainer.step_count == paused_at  # the trainer does not run while paused
+        assert session.trainer_status().step == paused_at  # the trainer does not run while paused
         session.single_step()
-        wait(lambda: session.trainer.step_count == paused_at + 1, 30, "one step")
+        wait(lambda: session.trainer_status().step == paused_at + 1, 30, "one step")
         time.sleep(0.3)
-        assert session.trainer.step_count == paused_at + 1 and session.status().state == "paused"
+        assert session.trainer_status().step == paused_at + 1 and session.status().state == "paused"
         session.pause_at(paused_at + 6)
         session.resume()
-        wait(lambda: session.trainer.step_count >= paused_at + 6 and session.status().state == "paused", 60,
+        wait(lambda: session.trainer_status().step >= paused_at + 6 and session.status().state == "paused", 60,
              "pause at N")
         time.sleep(0.3)
-        assert session.trainer.step_count == paused_at + 6
+        assert session.trainer_status().step == paused_at + 6
         assert session.update_config(background="white").startswith("background can only be set before")
         assert session.update_config(lambda_shape=1.0) is None
         session.resume()
-        wait(lambda: session.trainer.config.lambda_shape == 1.0, 30, "the config change")
+        wait(lambda: session.trainer_status().config.lambda_shape == 1.0, 30, "the config change")
     finally:
         session.close()
     assert session.status().state == "stopped"
     state = load_checkpoint(tmp_path / "r" / "checkpoint.pt")
     assert paused_at + 6 <= state["step"] < 5000
     assert (tmp_path / "r" / "point_cloud.ply").exists()
-    kinds = [m.kind for m in session.poll() if isinstance(m, SessionMessage)]
-    assert "saved" in kinds
+    assert any(isinstance(m, Saved) for m in session.poll())
 
 
 def test_an_error_in_the_trainer_is_one_line_and_the_model_is_saved(scene_dir, tmp_path):
@@ -83,8 +82,7 @@ def test_an_error_in_the_trainer_is_one_line_and_the_model_is_saved(scene_dir, t
     wait(lambda: not session.running, 120, "the run to end")
     status = session.status()
     assert status.state == "error" and status.error == "RuntimeError: the disk is full"
-    messages = [m for m in session.poll() if isinstance(m, SessionMessage)]
-    assert any(m.kind == "error" and m.text == status.error for m in messages)
+    assert any(isinstance(m, Failed) and m.text == status.error for m in session.poll())
     assert load_checkpoint(tmp_path / "r" / "checkpoint.pt")["step"] == 4  # what there was, kept
     # the session goes on: a new run starts after the error
     session.start([reconstruct_stage(scene_dir, tmp_path / "r2", preset="quick", downscale=4, iterations=3)])
@@ -163,7 +161,7 @@ def test_a_call_submitted_while_a_stage_ends_never_reaches_the_next_stages_train
     session.start([Stage("reconstruct", build, save), Stage("stylize", build, save)])
     try:
         wait(saving.is_set, 120, "the first stage to save")
-        future = session.submit(lambda trainer: trainer)
+        future = session.submit(UseModel(lambda model, original: model))
         go_on.set()
         wait(future.done, 120, "the call to be answered")
         assert len(trainers) == 2
@@ -193,14 +191,14 @@ def test_a_live_delete_is_taken_by_a_paused_trainer_that_just_densified(tmp_path
     app = ViewerApp(Paths(out=str(tmp_path / "out")))
     app.session.start([Stage("reconstruct", build, lambda *a: None)], paused=True)
     try:
-        wait(lambda: app.session.trainer is not None and app.session.status().state == "paused", 120, "the trainer")
-        trainer = app.session.trainer
+        wait(lambda: app.session.has_trainer and app.session.status().state == "paused", 120, "the trainer")
         while not structure:
-            steps = trainer.step_count
+            steps = app.session.trainer_status().step
             app.session.single_step()
-            wait(lambda: trainer.step_count == steps + 1 and app.session.status().state == "paused", 60, "a step")
-        n = len(trainer.gaussians)
-        from app.viewer.runs import edit_live
+            wait(lambda: app.session.trainer_status().step == steps + 1 and app.session.status().state == "paused",
+                 60, "a step")
+        n = app.session.trainer_status().num_gaussians
+        from app.viewer.live.runs import edit_live
 
         edit_live(app.document, app.session, app.ui)
         ed = app.document.editor
@@ -210,7 +208,7 @@ def test_a_live_delete_is_taken_by_a_paused_trainer_that_just_densified(tmp_path
         (what, future, _), = app.ui.training.pending
         wait(future.done, 60, "the trainer to take the deletion")
         assert future.exception() is None, future.exception()
-        assert len(trainer.gaussians) == n - (n + 1) // 2
+        assert app.session.trainer_status().num_gaussians == n - (n + 1) // 2
     finally:
         app.session.close()
 
@@ -241,7 +239,7 @@ def test_a_call_submitted_as_the_run_ends_is_answered():
         assert session.running  # the thread is still there: what the UI sees
         future = None
         try:
-            future = session.submit(lambda trainer: trainer)
+            future = session.submit(UseModel(lambda model, original: model))
         except ValueError as exc:
             assert str(exc) == "no trainer is running"
         release.set()

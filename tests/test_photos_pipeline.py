@@ -1,4 +1,4 @@
-"""The photos pipeline in the live session, without a window: the SfM stage (app/viewer/sfm_run.py) reports its
+"""The photos pipeline in the live session, without a window: the SfM stage (app/viewer/live/sfm_run.py) reports its
 phases through the session's status and events, a stop leaves no scene folder and says so in one line, a failure is
 one line and the session goes on, and its scene is what the reconstruction stage reads. Real fern photos, shrunk."""
 
@@ -10,9 +10,10 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from app.viewer.session import LiveSession, SessionMessage
+from app.viewer.live.session import Failed, LiveSession, Said
 from app.settings.sfm import options_from_flags
-from app.viewer.stages import reconstruct_stage, sfm_stage
+from app.viewer.live.session import LiveSession, SessionMessage
+from app.viewer.live.stages import reconstruct_stage, sfm_stage
 from training.core.messages import TrainerEvent
 from training.scene.image_io import read_image, resize_image, write_image
 from training.scene.sfm import partial_folder
@@ -71,7 +72,7 @@ def test_stop_while_registering_leaves_no_scene_folder_and_one_line(photos, tmp_
     status = session.status()
     assert (status.stage, status.state) == ("sfm", "stopped")  # the reconstruction never started
     items = session.poll()
-    lines = [m.text for m in items if isinstance(m, SessionMessage) and m.kind == "info"]
+    lines = [m.text for m in items if isinstance(m, Said)]
     assert lines == [f"structure from motion stopped: nothing written ({out} appears only once complete)"]
     assert session.notes == lines and session.saved == []
     assert sorted(p.name for p in (tmp_path / "out").iterdir()) == []  # no scene, no partial folder
@@ -106,7 +107,7 @@ def test_the_scene_is_read_as_the_mapper_builds_it_and_the_reconstruction_starts
     assert sizes[-1] > sizes[0] > 0
     final = previews[-1][1]
     assert final.sh_degree == 0 and np.all(final.opacities == 1.0) and np.isfinite(final.means).all()
-    lines = [m.text for m in session.poll() if isinstance(m, SessionMessage) and m.kind == "info"]
+    lines = [m.text for m in session.poll() if isinstance(m, Said)]
     assert any(line.startswith("registered 10/10 photos") for line in lines)
     assert any(line == f"scene written to {out / 'scene'} (images/, sparse/0, sfm_report.json)" for line in lines)
 
@@ -124,7 +125,7 @@ def test_three_photos_that_overlap_nothing_are_one_line_and_the_session_goes_on(
     wait(lambda: not session.running, 120, "the failure")
     status = session.status()
     assert status.state == "error"
-    errors = [m.text for m in session.poll() if isinstance(m, SessionMessage) and m.kind == "error"]
+    errors = [m.text for m in session.poll() if isinstance(m, Failed)]
     assert len(errors) == 1 and "\n" not in errors[0] and errors[0] == status.error
     assert errors[0].startswith(f"{tmp_path / 'photos'}: none of the 3 photos overlaps any other")
     assert not (tmp_path / "out" / "scene").exists() and not partial_folder(tmp_path / "out" / "scene").exists()

@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 
 from app.render_inputs import load_model_arrays
-from app.viewer import select_tools as st
+from app.viewer.edit import select_tools as st
 from renderer_gl import SplatRenderer, create_context
 from tests.viewer_harness import make_demo_scene
 

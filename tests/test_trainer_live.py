@@ -191,6 +191,30 @@ def test_stylize_snapshot_copies_only_colours_and_tracks_versions(tiny, vgg):
     assert np.array_equal(second.sh, s.gaussians.sh.detach().numpy())
 
 
+def test_stylize_status_is_published_whole_after_each_step_and_each_deletion(tiny, vgg):
+    """What the viewer's panels read (through the session): the status the stylizer built after its last step,
+    a new object each time, never one being written; a listener of the step event already sees that step's."""
+    s = stylizer(tiny, vgg)
+    first = s.status()
+    assert first.stage == "stylize" and first.step == 0 and first.capacity is None and first.losses == {}
+    seen = []
+    s.add_listener(lambda e: seen.append((e.step, s.status().step)) if e.kind == "step" else None)
+    for _ in range(3):
+        s.step()
+    st = s.status()
+    assert st is not first and seen == [(1, 1), (2, 2), (3, 3)]
+    assert st.trajectory_position == s.trajectory_position and st.pass_progress == s.pass_progress()
+    assert [stop.source_index for stop in st.trajectory] == [item.source_index for item in s.trajectory]
+    assert st.capacity is not None and st.capacity.ndim == 2 and st.num_gaussians == len(s.gaussians)
+    assert st.losses["loss"] == s.last_stats["loss"] and st.gradient_balance == s.last_stats["content_to_style"]
+    assert st.utilisation == s.utilisation() and st.colour_only
+    keep = np.arange(len(s.gaussians)) % 2 == 0
+    s.keep(keep)
+    after = s.status()
+    assert after.num_gaussians == int(keep.sum()) and after.structure_version == s.structure_version
+    assert after.structure_version != st.structure_version
+
+
 def test_stylize_events_and_cancelled_finish(tiny, vgg):
     s = stylizer(tiny, vgg)
     events: list[TrainerEvent] = []

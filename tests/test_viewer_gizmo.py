@@ -56,7 +56,7 @@ def assert_union(path, parts, atol=0.0) -> None:
 
 
 def test_three_point_pairs_give_the_similarity_back():
-    from app.viewer.align_points import similarity_from_pairs
+    from app.viewer.edit.align_points import similarity_from_pairs
 
     m = similarity(37.0, (0.3, -1.0, 0.4), 1.7, (2.0, -0.5, 3.0))
     src = np.array([[0.1, 0.2, 0.3], [1.5, -0.4, 0.2], [-0.3, 0.9, 1.1]])
@@ -68,7 +68,7 @@ def test_three_point_pairs_give_the_similarity_back():
 
 DRAG = """
 from imgui_bundle import imgui
-from app.viewer import gestures
+from app.viewer.display import gestures
 
 def drag(ctx, start, offset, steps=8):
     ctx.mouse_move_to_pos(imgui.ImVec2(float(start[0]), float(start[1])))
@@ -227,7 +227,7 @@ def test_a_second_model_moved_by_the_gizmo_exports_and_bakes_as_one_model(demo_s
     second = moved_copy(model, similarity(30.0, (0, 1, 0), 0.6, (16.0, 0.0, 2.0)), tmp_path / "second.ply")
     project = tmp_path / "scene.splatproj"
     found = run_gui(PRELUDE + DRAG + f"""
-from app.viewer.camera_control import ViewerCamera
+from app.viewer.display.camera_control import ViewerCamera
 app = ViewerApp(Paths(model={str(model)!r}, out=str(OUT / "out")))
 
 def test(ctx):
@@ -354,7 +354,7 @@ def test_three_point_alignment_puts_a_moved_copy_back(demo_scene, tmp_path):
     known = similarity(12.0, (0.2, 1.0, 0.1), 0.85, (17.0, 1.0, 1.5))
     copy = moved_copy(model, known, tmp_path / "copy.ply")
     found = run_gui(PRELUDE + DRAG + f"""
-from app.viewer.camera_control import ViewerCamera
+from app.viewer.display.camera_control import ViewerCamera
 app = ViewerApp(Paths(model={str(model)!r}, out=str(OUT / "out")))
 known = np.array({known.tolist()!r})
 
@@ -423,7 +423,7 @@ Path(os.environ["RESULT"]).write_text(json.dumps(found))
 def test_a_gizmo_pose_becomes_a_similarity_about_its_centre():
     """What a drag's start and current gizmo matrices become: a turn made exactly orthonormal, a per-axis scale
     made uniform (the mean), both about the gizmo's centre (which stays where it is)."""
-    from app.viewer.gizmo import similarity_delta
+    from app.viewer.display.gizmo import similarity_delta
     from training.model.transform import split_similarity
 
     start = np.eye(4)
@@ -448,7 +448,7 @@ def test_a_gizmo_pose_becomes_a_similarity_about_its_centre():
 def test_the_scene_ledger_maps_source_rows_to_their_files():
     """Parts tile the source rows: a model of 5, a second of 3, then rows 1 and 3 of the first moved and row 2 of
     the second: each source row names its file and its row there."""
-    from app.viewer.scene_models import SceneModels
+    from app.viewer.edit.scene_models import SceneModels
 
     models = SceneModels.opened("a.ply", 5)
     models.add_part(models.add_file("b.ply"), np.arange(3), np.eye(4))
@@ -474,8 +474,8 @@ def test_moves_under_a_scaled_and_turned_world_are_moves_in_the_view(demo_scene,
     second = moved_copy(model, similarity(0.0, (0, 1, 0), 1.0, (15.0, 0.0, 0.0)), tmp_path / "second.ply")
     world = similarity(30.0, (0, 1, 0), 2.0, (1.0, -2.0, 3.0))
     found = run_gui(PRELUDE + DRAG + f"""
-from app.viewer.camera_control import ViewerCamera
-from app.viewer.world_edit import set_world
+from app.viewer.display.camera_control import ViewerCamera
+from app.viewer.edit.world_edit import set_world
 app = ViewerApp(Paths(model={str(model)!r}, out=str(OUT / "out")))
 
 def test(ctx):

@@ -24,9 +24,9 @@ def test_x11_two_models_on_screen_and_the_gizmo_on_selection_box_and_model(demo_
     found = run_gui(PRELUDE + LOOK + f"""
 import pickle
 from imgui_bundle import imgui
-from app.viewer import gestures
-from app.viewer.camera_control import ViewerCamera
-from app.viewer.selection import in_box
+from app.viewer.display import gestures
+from app.viewer.display.camera_control import ViewerCamera
+from app.viewer.edit.editor import in_box
 from training.scene.image_io import write_image
 app = ViewerApp(Paths(model={str(model)!r}, out=str(OUT / "out")))
 

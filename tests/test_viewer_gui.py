@@ -35,8 +35,8 @@ app = ViewerApp(Paths(model={str(model)!r}, data={str(scene_dir)!r}, style={str(
 def test(ctx):
     wait(ctx, lambda: app.session.status().state == "running" and app.session.status().step >= 2, 180,
          "the stylizer to run")
-    trainer = app.session.trainer
-    found["tau_before"] = trainer.config.tau
+    found["tau_before"] = app.session.trainer_status().config.tau
+    trainer = app.session._trainer  # the trainer itself, against what the panels did (a test may reach in)
     open_window(ctx, "Style")
     changed_at = app.session.status().step     # steps up to this one finished before the change
     ctx.item_input_value("tau", 0.05)          # the slider, through the UI
@@ -44,14 +44,15 @@ def test(ctx):
     new_tau = lambda h: abs(h.get("tau", 0.0) - 0.05) < 1e-6  # the slider holds float32
     wait(ctx, lambda: any(new_tau(h) for h in list(app.session.history)), 60,
          "a step that used the new tau")
-    found["tau_after"] = trainer.config.tau
+    found["tau_after"] = app.session.trainer_status().config.tau
     found["first_step_with_new_tau"] = min(h["step"] for h in list(app.session.history) if new_tau(h))
     found["changed_at"] = changed_at
     open_window(ctx, "View order")
     ctx.yield_(3)
     found["drawn_order"] = list(app.ui.window.drawn_order)
-    found["trainer_order"] = [item.source_index for item in trainer.trajectory if not item.is_virtual]
-    found["capacity_shape"] = list(trainer.capacity_map().shape)
+    status = app.session.trainer_status()
+    found["trainer_order"] = [stop.source_index for stop in status.trajectory if not stop.is_virtual]
+    found["capacity_shape"] = list(status.capacity.shape)
     open_window(ctx, "Edit")
     ctx.item_click("Select in sphere")
     open_window(ctx, "Style")
@@ -266,10 +267,10 @@ def test_edits_sliders_masks_and_exports_never_race_the_running_trainer(demo_sce
     scene_dir, style, model = demo_scene
     found = run_gui(PRELUDE + f"""
 import random
-from app.viewer import export_panel
-from app.viewer.runs import set_style_region
-from app.viewer.style_panel import set_stylize
-from app.viewer.selection import in_sphere
+from app.viewer.edit.editor import in_sphere
+from app.viewer.live.runs import set_style_region
+from app.viewer.panels import export_panel
+from app.viewer.panels.style_panel import set_stylize
 app = ViewerApp(Paths(model={str(model)!r}, data={str(scene_dir)!r}, style={str(style)!r}, out=str(OUT / "out")),
                 start="stylize", stylize_overrides={{"max_side": 48, "iters_per_view": 200}})
 rng = random.Random(7)
@@ -277,7 +278,7 @@ rng = random.Random(7)
 def test(ctx):
     wait(ctx, lambda: app.session.status().state == "running" and app.session.status().step >= 2, 180,
          "the stylizer to run")
-    from app.viewer.runs import edit_live
+    from app.viewer.live.runs import edit_live
     edit_live(app.document, app.session, app.ui)
     found["n0"] = app.document.editor.count
     counts = {{"delete": 0, "slider": 0, "region": 0, "export": 0}}
@@ -305,7 +306,7 @@ def test(ctx):
     found["step_at_end"] = app.session.status().step
     app.session.pause()
     wait(ctx, lambda: app.session.status().state == "paused", 60, "the pause")
-    final = app.session.trainer.stylized_gaussians()
+    final = app.session._trainer.stylized_gaussians()  # the trainer itself: a test may reach in
     found["final_means"] = final.means.detach().numpy().tolist()
     found["final_sh_finite"] = bool(np.isfinite(final.sh.detach().numpy()).all())
 
@@ -373,8 +374,8 @@ def test_a_saved_project_opens_to_the_same_model_view_and_keyframes(demo_scene, 
     scene_dir, style, model = demo_scene
     project = tmp_path / "session.splatproj"
     first = run_gui(PRELUDE + f"""
-from app.viewer import colour_view as cv
-from app.viewer.selection import in_sphere
+from app.viewer.edit import colour_view as cv
+from app.viewer.edit.editor import in_sphere
 from training.model.colour_edit import ColourAdjustment
 app = ViewerApp(Paths(model={str(model)!r}, data={str(scene_dir)!r}, style={str(style)!r}, out=str(OUT / "a")))
 
@@ -450,7 +451,7 @@ def test(ctx):
     found["rotation"] = app.view.camera.rotation.tolist()
     found["position"] = app.view.camera.position.tolist()
     found["data"], found["style"] = app.ui.paths.data, app.ui.paths.style
-    from app.viewer.colour_view import displayed
+    from app.viewer.edit.colour_view import displayed
 
     shown = displayed(app.document, app.session, ed.model)
     np.save(OUT / "means_b.npy", shown.means)
@@ -487,7 +488,7 @@ def test_a_stylization_brings_its_tab_forward_says_its_pass_and_writes_the_demo_
     found = run_gui(PRELUDE + f"""
 from app.commands.demo import WindowOutputs
 from app.viewer.layout import front_tab
-from app.viewer.runs import current_view_index, stylize_progress
+from app.viewer.live.runs import current_view_index, stylize_progress
 outputs = WindowOutputs(Path({str(scene_dir)!r}), Path({str(style)!r}), OUT / "out")
 app = ViewerApp(Paths(model={str(model)!r}, data={str(scene_dir)!r}, style={str(style)!r}, out=str(OUT / "out")),
                 stylize_overrides={{"max_side": 48, "iters_per_view": 2}}, outputs=outputs)
@@ -502,7 +503,7 @@ def test(ctx):
     wait(ctx, lambda: app.session.status().state == "paused", 60, "the pause")
     ctx.yield_(3)
     found["front_during"] = front_tab("Style")
-    trainer = app.session.trainer
+    trainer = app.session._trainer  # the trainer itself, against what the panels read from its status
     steps = []
     for _ in range(3):  # one step at a time (the Step button's command): the line and the red mark follow each
         ctx.yield_(2)
@@ -561,7 +562,7 @@ def test_the_style_panel_shows_no_error_while_a_stylization_loads_after_a_recons
     scene_dir, style, _ = demo_scene
     found = run_gui(PRELUDE + f"""
 import threading
-from app.viewer import runs
+from app.viewer.live import runs
 loaded = threading.Event()
 stylize_stage = runs.stylize_stage
 
@@ -587,7 +588,7 @@ def test(ctx):
     wait(ctx, lambda: app.session.status().stage == "stylize", 300, "the stylization to begin loading")
     open_window(ctx, "Style")
     ctx.yield_(10)
-    found["trainer_while_loading"] = type(app.session.trainer).__name__
+    found["trainer_while_loading"] = type(app.session._trainer).__name__  # a test may reach in
     found["error_while_loading"] = app.ui.messages.error
     loaded.set()
     wait(ctx, lambda: app.session.status().step >= 2, 300, "two stylization steps")

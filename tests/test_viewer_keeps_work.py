@@ -17,10 +17,11 @@ import pytest
 import torch
 
 from app.project import FileRef, ModelEntry, Project, open_project, save_project
-from app.viewer import files, runs
+from app.viewer import files
 from app.viewer.app import ViewerApp
-from app.viewer.session import LiveSession, SessionMessage, Stage
-from app.viewer.stages import reconstruct_stage, stylize_stage
+from app.viewer.live import runs
+from app.viewer.live.session import Failed, LiveSession, Saved, Stage
+from app.viewer.live.stages import reconstruct_stage, stylize_stage
 from app.viewer.state import Paths
 from tests.viewer_harness import make_demo_scene
 from training.model.gaussians import Gaussians
@@ -49,7 +50,7 @@ def wait(condition, seconds: float, what: str) -> None:
 
 
 def saved_paths(session) -> list[str]:
-    return [m.text for m in session.poll() if isinstance(m, SessionMessage) and m.kind == "saved"]
+    return [m.path for m in session.poll() if isinstance(m, Saved)]
 
 
 # ------------------------------------------------------------------------------------------ item 1
@@ -73,7 +74,7 @@ def test_a_stop_during_the_final_colour_transfer_keeps_the_finished_stylization(
             trainer = inner.build(previous)
             seen["total"] = trainer.total_iters
             if when == "transfer":
-                render = trainer.render
+                render = trainer.model.render  # each view of the transfer renders through the stylized model
 
                 def counted(*args, **kwargs):  # the transfer renders every view: Stop after its second
                     if trainer.done:
@@ -82,7 +83,7 @@ def test_a_stop_during_the_final_colour_transfer_keeps_the_finished_stylization(
                             session.stop()
                     return render(*args, **kwargs)
 
-                trainer.render = counted
+                trainer.model.render = counted
             else:
                 trainer.add_listener(lambda e: session.stop() if e.kind == "step" and e.step == 3 else None)
             return trainer
@@ -217,7 +218,7 @@ def test_settings_given_while_a_new_run_loads_are_that_runs_not_the_last_trainer
     session = LiveSession()
     session.start([Stage("reconstruct", lambda _: tiny_reconstructor(2), lambda *a: None)])
     wait(lambda: not session.running, 120, "the first run")
-    old = session.trainer
+    old = session._trainer  # the last run's trainer itself: a test may reach in
     loading, go_on, built = threading.Event(), threading.Event(), []
 
     def build(_previous):
@@ -232,10 +233,13 @@ def test_settings_given_while_a_new_run_loads_are_that_runs_not_the_last_trainer
         answers = [session.update_config(lambda_shape=0.25), session.update_config(no_such_setting=1)]
         go_on.set()
         wait(lambda: session.status().state == "paused", 60, "the new trainer")
-        assert built[0].config.lambda_shape == 0.25 and old.config.lambda_shape != 0.25
+        session.single_step()
+        wait(lambda: session.trainer_status().step == 1, 60, "the new trainer's first step")
+        assert built[0].config.lambda_shape == 0.25 and session.trainer_status().config.lambda_shape == 0.25
+        assert old.config.lambda_shape != 0.25
         assert answers == [None, None]  # the second is checked when the trainer is there
-        errors = [m.text for m in session.poll() if isinstance(m, SessionMessage) and m.kind == "error"]
-        assert errors == ["the running reconstruct has no setting no_such_setting"]
+        errors = [m.text for m in session.poll() if isinstance(m, Failed)]
+        assert errors == ["the reconstruction has no setting no_such_setting"]
     finally:
         go_on.set()
         session.close()
@@ -245,7 +249,7 @@ def test_settings_given_while_a_new_run_loads_are_that_runs_not_the_last_trainer
 def test_a_style_slider_moved_while_the_stylization_loads_is_the_runs_setting(demo_scene, vgg, tmp_path):
     """The Style panel's tau moved between Stylize and the stylizer's first step: the run uses it (before, the
     slider showed it and the run used the old value at every step)."""
-    from app.viewer.style_panel import set_stylize
+    from app.viewer.panels.style_panel import set_stylize
 
     scene_dir, style, model = demo_scene
     app = ViewerApp(Paths(out=str(tmp_path / "out")), stylize_overrides={"max_side": 32, "iters_per_view": 30})
@@ -258,7 +262,7 @@ def test_a_style_slider_moved_while_the_stylization_loads_is_the_runs_setting(de
         set_stylize(session, ui, tau=0.07)
         assert ui.messages.error == "" and ui.training.stylize.tau == 0.07
         wait(lambda: session.status().step >= 1, 300, "the first stylization step")
-        assert session.trainer.config.tau == 0.07
+        assert session.trainer_status().config.tau == 0.07
         assert all(abs(h["tau"] - 0.07) < 1e-9 for h in list(session.history))
     finally:
         session.close()

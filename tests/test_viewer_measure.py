@@ -25,7 +25,7 @@ def demo_scene(tmp_path_factory):
 
 PICKING = """
 from imgui_bundle import imgui
-from app.viewer.gestures import view_camera
+from app.viewer.display.gestures import view_camera
 
 def still(ctx):
     app.view.moved()
@@ -57,7 +57,7 @@ def click_pixel(ctx, ix, iy):
 def test_measure_rescale_undo_up_and_export_of_the_project(demo_scene, tmp_path):
     scene_dir, _, model = demo_scene
     found = run_gui(PRELUDE + PICKING + f"""
-from app.viewer.world_edit import distance
+from app.viewer.edit.world_edit import distance
 app = ViewerApp(Paths(model={str(model)!r}, data={str(scene_dir)!r}, out=str(OUT / "out")))
 
 def centres():

@@ -19,7 +19,7 @@ LINE = (120, 255, 60)  # gestures.PICK_LINE
 def test_x11_measure_line_and_floor_levelling_on_screen(demo_scene, x_server, tmp_path):
     scene_dir, _, model = demo_scene
     found = run_gui(PRELUDE + LOOK + PICKING + f"""
-from app.viewer.world_edit import distance
+from app.viewer.edit.world_edit import distance
 app = ViewerApp(Paths(model={str(model)!r}, data={str(scene_dir)!r}, out=str(OUT / "out")))
 
 def on_screen(points):

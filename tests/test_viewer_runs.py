@@ -9,8 +9,10 @@ import time
 
 import pytest
 
-from app.viewer import files, runs
+from app.viewer import files
 from app.viewer.app import ViewerApp
+from app.viewer.live import runs
+from app.viewer.live.session import Saved
 from app.viewer.state import Paths
 from tests.viewer_harness import make_demo_scene
 from training.model.ply_io import read_ply
@@ -29,8 +31,8 @@ def finish(app: ViewerApp, seconds: float = 300) -> None:
         assert time.time() - t0 < seconds, "the run did not end"
         time.sleep(0.05)
     for item in app.session.poll():
-        if getattr(item, "kind", "") == "saved":
-            runs.record_saved(app.document, app.ui, item.stage, item.text)
+        if isinstance(item, Saved):
+            runs.record_saved(app.document, app.ui, item.stage, item.path)
 
 
 def test_a_second_reconstruction_keeps_the_first(demo_scene, tmp_path):

@@ -170,7 +170,7 @@ def test(ctx):
     ctx.item_input_value("tau", 0.05)          # the slider, through the UI
     new_tau = lambda h: abs(h.get("tau", 0.0) - 0.05) < 1e-6
     wait(ctx, lambda: any(new_tau(h) for h in list(app.session.history)), 90, "a step that used the new tau")
-    found["tau_after"] = app.session.trainer.config.tau
+    found["tau_after"] = app.session.trainer_status().config.tau
     wait(ctx, lambda: app.ui.training.shown_step >= first_step + 40, 180, "the view to show 40 steps later")
     settle(ctx, 0.5)
     later = view_region(x_screen())
@@ -182,7 +182,7 @@ def test(ctx):
     ctx.item_click("capacity map")             # on again: the map over it
     settle(ctx, 0.5)
     np.save(OUT / "painting_map.npy", region(x_screen(), app.ui.window.painting_rect))
-    found["capacity_shape"] = list(app.session.trainer.capacity_map().shape)
+    found["capacity_shape"] = list(app.session.trainer_status().capacity.shape)
 
 run(app, test)
 found["error"] = app.ui.messages.error
@@ -294,8 +294,8 @@ def test_x11_a_saved_project_opens_to_the_same_picture(demo_scene, x_server, tmp
     scene_dir, style, model = demo_scene
     first = run_gui(PRELUDE + LOOK + f"""
 import pickle
-from app.viewer import colour_view as cv
-from app.viewer.selection import in_sphere
+from app.viewer.edit import colour_view as cv
+from app.viewer.edit.editor import in_sphere
 from training.model.colour_edit import ColourAdjustment
 app = ViewerApp(Paths(model={str(model)!r}, data={str(scene_dir)!r}, style={str(style)!r}, out=str(OUT / "a")))
 

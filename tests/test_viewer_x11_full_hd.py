@@ -80,7 +80,7 @@ def test(ctx):
     x, y, w, h = app.ui.window.painting_rect
     found["painting"] = [ox + x, oy + y, w, h]
     found["order_rect"] = rect_of(imgui.internal.find_window_by_name("View order"))
-    trainer = app.session.trainer
+    trainer = app.session._trainer  # the trainer itself, against what the View order panel shows
     for name in ("a", "b"):
         app.view.dirty = True
         settle(ctx, 0.8)

@@ -1,4 +1,4 @@
-"""The scene's world transform (app/world_transform.py, app/viewer/world_edit.py) without a window: the viewer's
+"""The scene's world transform (app/world_transform.py, app/viewer/edit/world_edit.py) without a window: the viewer's
 model snapshot moves as the exported file does, the dataset cameras see the moved scene in the same pixels,
 levelling turns a direction onto the viewer's up, rescale and undo in the editor, and the project carries the
 world to ``splatstyler export --project``."""
@@ -11,9 +11,9 @@ import torch
 
 from training.scene.pose import quat_to_matrix
 from app.viewer.app import ViewerApp
+from app.viewer.edit.editor import Editor
+from app.viewer.edit.scene_models import snapshot_of
 from app.viewer.files import open_model, open_project, save_project
-from app.viewer.scene_models import snapshot_of
-from app.viewer.selection import Editor
 from app.viewer.state import Paths
 from app.world_transform import (VIEWER_UP, cameras_up, level, plane_normal, rotation_between, scale_about,
                                  transform_camera, transform_snapshot)
@@ -38,7 +38,7 @@ def similarity(scale=2.5, q=(0.3, 0.5, -0.2, 0.7), t=(1.0, 2.0, -3.0)) -> np.nda
 
 
 def camera(position, target, up=(0.0, -1.0, 0.0)) -> Camera:
-    from app.viewer.camera_control import ViewerCamera
+    from app.viewer.display.camera_control import ViewerCamera
 
     return ViewerCamera.looking_at(position, target, up=up).camera(64, 48)
 
@@ -103,10 +103,10 @@ def test_rescale_moves_model_and_cameras_by_the_ratio_and_undo_restores_them_bit
     doc, session, ui = app.document, app.session, app.ui
     open_model(doc, session, ui, str(tmp_path / "m.ply"))
     cams = [camera([4.0, -1.0, -4.0], [0.0, 0.0, 0.0]), camera([-4.0, -1.0, -3.0], [0.0, 0.0, 0.0])]
-    from app.viewer.document import Dataset
+    from app.viewer.edit.document import Dataset
 
     doc.dataset = Dataset("", cams)  # a dataset's cameras, as loaded
-    from app.viewer.world_edit import add_point, follow_world, level_from_cameras, rescale_to
+    from app.viewer.edit.world_edit import add_point, follow_world, level_from_cameras, rescale_to
 
     follow_world(doc, session, ui)
     before = doc.editor.model
@@ -121,7 +121,7 @@ def test_rescale_moves_model_and_cameras_by_the_ratio_and_undo_restores_them_bit
     for a, b in zip(doc.cameras, cams):
         assert np.allclose(a.center, b.center * factor, rtol=1e-12)
     assert np.isclose(np.linalg.norm(ui.world.points[1] - ui.world.points[0]), 3.0)
-    from app.viewer.world_edit import scene_up
+    from app.viewer.edit.world_edit import scene_up
 
     assert scene_up(doc, session) is None  # scaled, not turned: the cameras still say where up is
     assert np.allclose(doc.in_file_frame(doc.editor.model).means, before.means, atol=1e-6)  # what a run starts from
@@ -149,7 +149,7 @@ def test_a_change_keeps_its_gaussians_and_refuses_others():
 
 def test_export_of_a_rescaled_levelled_project_is_the_file_moved_by_the_world(tmp_path):
     from app.commands.export import baked_project
-    from app.viewer.world_edit import set_world
+    from app.viewer.edit.world_edit import set_world
 
     g = model(n=40, degree=2)
     write_ply(tmp_path / "m.ply", g)
@@ -183,14 +183,14 @@ def floor_scene(tmp_path):
     write_ply(tmp_path / "floor.ply", g)
     app = ViewerApp(Paths(out=str(tmp_path / "out")))
     open_model(app.document, app.session, app.ui, str(tmp_path / "floor.ply"))
-    from app.viewer.world_edit import follow_world
+    from app.viewer.edit.world_edit import follow_world
 
     follow_world(app.document, app.session, app.ui)  # what each frame does first
     return app, floor
 
 
 def test_fit_the_floor_levels_the_plane_of_the_gaussians_around_the_point(tmp_path):
-    from app.viewer.world_edit import add_point, level_from_fit
+    from app.viewer.edit.world_edit import add_point, level_from_fit
 
     app, floor = floor_scene(tmp_path)
     doc, session, ui = app.document, app.session, app.ui
@@ -206,7 +206,7 @@ def test_fit_the_floor_levels_the_plane_of_the_gaussians_around_the_point(tmp_pa
 
 
 def test_pick_the_floor_levels_the_plane_through_three_points(tmp_path):
-    from app.viewer.world_edit import add_point, level_from_floor
+    from app.viewer.edit.world_edit import add_point, level_from_floor
 
     app, floor = floor_scene(tmp_path)
     ui = app.ui

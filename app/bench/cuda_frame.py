@@ -1,6 +1,6 @@
 """Where a frame of the viewer's CUDA display path goes, for each way into the texture (``pinned``, ``interop``).
 
-For one model and camera, each transfer (app/viewer/display_cuda.py) draws a warm-up frame (allocations, the
+For one model and camera, each transfer (app/viewer/display/cuda.py) draws a warm-up frame (allocations, the
 texture's CUDA registration), then:
 
 - ``cuda_<transfer>_frame_ms``: the whole frame as the viewer draws it (rasterize, convert to 8 bits, into the
@@ -27,7 +27,7 @@ TRANSFERS = ("pinned", "interop")
 def frame_breakdown(ctx, snap, camera, repeat: int, backend: str = "cuda",
                     transfers: tuple[str, ...] = TRANSFERS) -> dict:
     """The figures above for ``snap`` (a ModelSnapshot) seen by ``camera`` (a training Camera, at its size)."""
-    from app.viewer.display_cuda import CudaDisplay
+    from app.viewer.display.cuda import CudaDisplay
 
     size = (int(camera.width), int(camera.height))
     target = ctx.texture(size, 4)

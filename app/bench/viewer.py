@@ -15,7 +15,7 @@ context (EGL unless ``--backend``), on ``app.bench.raster``'s scene (a fixed amo
   default ("auto") sort plus upload, what a turning camera adds to a frame;
 - ``gpu_sort_ms``: the compute-shader bitonic sort (renderer_gl/gpu_sort.py), up to ``--gpu-sort-max`` Gaussians;
 - ``path_<path>[/<format>]_ms``: a turning-camera frame (sort included) through each display path this machine can
-  run (app/viewer/display_path.py: GL with the CPU sort, GL with the GPU sort, CUDA), timed by the viewer's own
+  run (app/viewer/display/choice.py: GL with the CPU sort, GL with the GPU sort, CUDA), timed by the viewer's own
   chooser; ``display_path``: the one it picks; ``paths_skipped``: why the others were not timed;
 - ``cuda_<transfer>_<stage>_ms``: where a frame of the CUDA display path goes (raster, convert, transfer, draw,
   and the whole frame), for the pinned copy and for CUDA-GL interop (app/bench/cuda_frame.py), where torch sees a
@@ -107,7 +107,7 @@ def _snapshot_and_camera(scene, w: int, h: int):
     orbiting the middle of the scene's box."""
     import numpy as np
 
-    from app.viewer.camera_control import ViewerCamera
+    from app.viewer.display.camera_control import ViewerCamera
     from training.core.messages import ModelSnapshot
 
     means, quats, scales, opac, sh = (t.numpy() for t in scene[:5])
@@ -118,9 +118,9 @@ def _snapshot_and_camera(scene, w: int, h: int):
 
 
 def _display_paths(ctx, scene, w: int, h: int, repeat: int) -> dict:
-    """Each display path's turning-camera frame (app/viewer/display_path.py: the viewer's own chooser and
+    """Each display path's turning-camera frame (app/viewer/display/choice.py: the viewer's own chooser and
     timings), the one it picks, and why the others were not timed."""
-    from app.viewer.display_path import choose_display_path
+    from app.viewer.display.choice import choose_display_path
 
     snap, cam = _snapshot_and_camera(scene, w, h)
     choice = choose_display_path(ctx, snap, cam, (w, h), override="auto", frames=max(1, repeat), always_time=True)
@@ -133,7 +133,7 @@ def _display_paths(ctx, scene, w: int, h: int, repeat: int) -> dict:
 def _cuda_breakdown(ctx, scene, w: int, h: int, repeat: int) -> dict:
     """Where a frame of the CUDA display path goes (app/bench/cuda_frame.py), or why it cannot be measured here."""
     from app.bench.cuda_frame import frame_breakdown
-    from app.viewer.display_path import unavailable
+    from app.viewer.display.choice import unavailable
 
     why = unavailable("cuda", ctx)
     if why is not None:

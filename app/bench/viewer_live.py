@@ -83,7 +83,7 @@ def _run_phase(spec: dict) -> dict:
 
 def _stylize_config(preset: str | None):
     from training.raster.rasterize import resolve_device
-    from training.stylize.trainer import StylizeConfig
+    from training.stylize.config import StylizeConfig
 
     if preset is None:  # as `splatstyler stylize`: the paper's preset where the trainer runs on CUDA
         preset = "paper" if resolve_device("auto").type == "cuda" else "quick"
@@ -101,8 +101,8 @@ def _data(spec: dict) -> tuple[str, int | None]:
 
 
 def _trainer(spec: dict):
-    """The stage's trainer, built as the viewer's session builds it (app/viewer/stages.py)."""
-    from app.viewer.stages import reconstruct_stage, stylize_stage
+    """The stage's trainer, built as the viewer's session builds it (app/viewer/live/stages.py)."""
+    from app.viewer.live.stages import reconstruct_stage, stylize_stage
 
     data, downscale = _data(spec)
     out = Path(spec["work"]) / f"{spec['stage']}_{spec['phase']}"
@@ -167,8 +167,8 @@ def _display(app) -> dict:
 
 
 def _trainer_device(app) -> dict:
-    trainer = app.session.trainer
-    return {"device": str(trainer.device)} if trainer is not None and hasattr(trainer, "device") else {}
+    status = app.session.trainer_status()
+    return {"device": status.device} if status is not None and status.device else {}
 
 
 def _window(spec: dict) -> dict:

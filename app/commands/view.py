@@ -62,7 +62,7 @@ def check_arguments(args: argparse.Namespace) -> None:
     file, or for a --run that lacks what it needs."""
     from pathlib import Path
 
-    from app.viewer.photos import is_scene, photos_folder
+    from app.viewer.live.photos import is_scene, photos_folder
     from training.core.errors import InputError
     from training.model.model_io import checked_format
 
@@ -110,7 +110,7 @@ def run(args: argparse.Namespace) -> int:
     from app.viewer.state import Paths
 
     check_arguments(args)
-    from app.viewer.photos import photos_folder
+    from app.viewer.live.photos import photos_folder
     from app.viewer.state import PhotosState
 
     photos = None

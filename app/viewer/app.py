@@ -17,19 +17,20 @@ from pathlib import Path
 
 import numpy as np
 
-from app.viewer import files, photos, runs
-from app.viewer.camera_control import ViewerCamera, camera_span
-from app.viewer.colour_view import displayed
-from app.viewer.document import Document
-from app.viewer.gizmo import gizmo_keys, sync_crop_box
+from app.viewer import files
+from app.viewer.display.camera_control import ViewerCamera, camera_span
+from app.viewer.display.gizmo import gizmo_keys, sync_crop_box
+from app.viewer.display.path_video import step_video
+from app.viewer.display.view3d import View3D
+from app.viewer.edit.colour_view import displayed
+from app.viewer.edit.document import Document
+from app.viewer.edit.world_edit import follow_world, scene_up
 from app.viewer.layout import (configure, floating_windows, help_overlay, quit_app, style_back, style_forward,
                                watch_style_tab)
-from app.viewer.path_video import step_video
+from app.viewer.live import photos, runs
+from app.viewer.live.session import Failed, LiveSession, Said, Saved, StageBegan, StateChanged
 from app.viewer.platform import choose_platform, prepare_glfw
-from app.viewer.session import LiveSession, SessionMessage
 from app.viewer.state import Paths, TrainingState, Ui
-from app.viewer.view3d import View3D
-from app.viewer.world_edit import follow_world, scene_up
 from training.core.messages import ModelSnapshot, TrainerEvent
 
 IDLE_FPS = 4.0  # frames per second while nothing happens: each frame costs a running trainer CPU time
@@ -47,7 +48,7 @@ class ViewerApp:
     def __init__(self, paths: Paths | None = None, start: str | None = None, preset: str = "quick",
                  recon_iters: int | None = None, stylize_overrides: dict | None = None,
                  downscale: int | None = None, project: str | None = None, outputs=None, photos=None):
-        from training.stylize.trainer import StylizeConfig
+        from training.stylize.config import StylizeConfig
 
         self.session = LiveSession()
         self.document = Document()
@@ -259,28 +260,26 @@ class ViewerApp:
         follow_world(doc, session, ui)  # the dataset cameras follow the scene's world transform (and its undo)
         sync_crop_box(doc, ui)  # and the crop box the undo of its drags
         for item in session.poll():
-            if isinstance(item, SessionMessage):
-                if item.kind == "stage":
-                    if item.text == "sfm":  # a new SfM: nothing registered yet, and the view is for it to frame
-                        self.sfm_shown, self._sfm_framed = ((), None), None
-                    if item.text == "stylize" and ui.training.before is None:
-                        trainer = session.trainer
-                        ui.training.before = trainer.snapshot() if trainer is not None else doc.model
-                    if item.text == "stylize":
-                        style_forward(ui)  # the painting and its capacity map are what a stylization changes
-                    self.update_overlays()
-                elif item.kind == "error":
-                    ui.messages.fail(item.text)
-                elif item.kind == "info":
-                    ui.messages.say(item.text)
-                elif item.kind == "saved":
-                    runs.record_saved(doc, ui, item.stage, item.text)
-                elif item.kind == "state":
-                    view.dirty |= item.text in ("paused", "finished", "stopped")
-                    self._last_snapshot_at = 0.0  # a pause or the end: show the model as it is now
-                    if item.stage == "stylize" and item.text in ("finished", "stopped", "error"):
-                        style_back(ui)
-                    photos.note_state(ui, item.text)
+            if isinstance(item, StageBegan):
+                if item.stage == "sfm":  # a new SfM: nothing registered yet, and the view is for it to frame
+                    self.sfm_shown, self._sfm_framed = ((), None), None
+                if item.stage == "stylize" and ui.training.before is None:
+                    ui.training.before = session.snapshot() if session.has_trainer else doc.model
+                if item.stage == "stylize":
+                    style_forward(ui)  # the painting and its capacity map are what a stylization changes
+                self.update_overlays()
+            elif isinstance(item, Failed):
+                ui.messages.fail(item.text)
+            elif isinstance(item, Said):
+                ui.messages.say(item.text)
+            elif isinstance(item, Saved):
+                runs.record_saved(doc, ui, item.stage, item.path)
+            elif isinstance(item, StateChanged):
+                view.dirty |= item.state in ("paused", "finished", "stopped")
+                self._last_snapshot_at = 0.0  # a pause or the end: show the model as it is now
+                if item.stage == "stylize" and item.state in ("finished", "stopped", "error"):
+                    style_back(ui)
+                photos.note_state(ui, item.state)
             elif isinstance(item, TrainerEvent):
                 if item.kind == "view":
                     self._overlays_stale = True
@@ -309,7 +308,7 @@ class ViewerApp:
                 view.renderer.set_flags(doc.editor.flags(), 0)
                 ui.edit.shown_version = doc.editor.version
                 view.dirty = True
-        elif doc.editor is not None and session.trainer is None and ui.edit.shown_version != doc.editor.version:
+        elif doc.editor is not None and not session.has_trainer and ui.edit.shown_version != doc.editor.version:
             view.show(displayed(doc, session, doc.model), 0)
             view.renderer.set_flags(doc.editor.flags(), 0)
             self._describe(doc.model)
@@ -333,7 +332,7 @@ class ViewerApp:
         now = time.perf_counter()
         if doc.live and (not session.running or doc.editor is None):
             doc.live = False
-        if (session.trainer is None or now - self._last_snapshot_at < ui.training.refresh_s or view.dirty
+        if (not session.has_trainer or now - self._last_snapshot_at < ui.training.refresh_s or view.dirty
                 or (self.training_now() and not view.may_draw_now())):
             return
         snap = session.snapshot()
@@ -412,8 +411,8 @@ class ViewerApp:
         """Window closed: the trainer stops and saves (checkpoint, model) before the GL objects go."""
         self.session.close()
         for item in self.session.poll():
-            if isinstance(item, SessionMessage) and item.kind == "saved":
-                self.ui.messages.say(f"saved {item.text}")
+            if isinstance(item, Saved):
+                self.ui.messages.say(f"saved {item.path}")
         self.ui.textures.release()
         if self.view is not None:
             self.view.release()

@@ -15,20 +15,20 @@ from pathlib import Path
 
 from imgui_bundle import hello_imgui, imgui
 
-from app.viewer import edit_panel, export_panel, gizmo_panel, select_tools_panel
-from app.viewer.colour_panel import colour_panel
 from app.viewer.files import open_from_dialog, save_project, save_project_as
-from app.viewer.sfm_run import phase_time_left
-from app.viewer.measure_panel import measure_panel
-from app.viewer.path_panel import path_panel
-from app.viewer.photos import choose_photos_folder
-from app.viewer.photos_panel import photos_dialog
-from app.viewer.scene_panel import scene_panel
-from app.viewer.style_panel import style_panel
-from app.viewer.text_colours import RED
-from app.viewer.training_panel import messages_panel, training_panel
-from app.viewer.view_order_panel import view_order_panel
-from app.viewer.view_panel import VIEW_WINDOW, view_window
+from app.viewer.live.photos import choose_photos_folder
+from app.viewer.live.sfm_run import phase_time_left
+from app.viewer.panels import edit_panel, export_panel, gizmo_panel, select_tools_panel
+from app.viewer.panels.colour_panel import colour_panel
+from app.viewer.panels.measure_panel import measure_panel
+from app.viewer.panels.path_panel import path_panel
+from app.viewer.panels.photos_panel import photos_dialog
+from app.viewer.panels.scene_panel import scene_panel
+from app.viewer.panels.style_panel import style_panel
+from app.viewer.panels.text_colours import RED
+from app.viewer.panels.training_panel import messages_panel, training_panel
+from app.viewer.panels.view_order_panel import view_order_panel
+from app.viewer.panels.view_panel import VIEW_WINDOW, view_window
 
 LEFT, LEFT_BOTTOM, RIGHT, RIGHT_BOTTOM = "LeftSpace", "LeftBottomSpace", "RightSpace", "RightBottomSpace"
 MAIN = "MainDockSpace"
@@ -105,7 +105,7 @@ def status_text(session, ui) -> str:
         bits += [f"{status.stage}: {status.state}", status.detail]
         if status.seconds_left is not None and status.state == "running":
             bits.append(phase_time_left(status.seconds_left))  # the phase's: SfM's phases differ in kind
-    elif session.trainer is not None or status.stage:
+    elif session.has_trainer or status.stage:
         line = f"{status.stage or '-'}: {status.state}"
         if status.total:
             line += f" {status.step}/{status.total}"

@@ -1,10 +1,16 @@
 """What makes a trainer drivable from another thread, shared by both trainers: the model lock, config changes
-applied at the next step, versions, snapshots and events (the message types are in ``messages``).
+applied at the next step, versions, snapshots, the published status and events (the message types are in
+``messages``, the status in ``status``).
 
 A trainer mixes ``LiveTrainer`` in, calls ``_init_live(config_name, stage)`` in its constructor, takes
 ``self._model_lock`` around every write to its model's tensors (bumping ``_version``, and ``_geometry_version``
 when means, scales, rotations, opacities or the count change), calls ``_take_pending_config()`` at the start of
-each step, and provides ``_snapshot_geometry()`` and ``_snapshot_colours()``.
+each step and ``_publish_status()`` at its end (before its events: a listener reading the status sees the step's),
+and after every change a caller makes to it, and provides ``_snapshot_geometry()``, ``_snapshot_colours()`` and
+``_build_status()``.
+
+``update_config`` is the one way live settings reach a trainer, whoever sends them (the viewer's sliders through
+the live session, a test, a script).
 """
 
 from __future__ import annotations
@@ -15,6 +21,7 @@ from typing import Any
 import torch
 
 from training.core.messages import EventSource, ModelSnapshot, checked_config_changes, frozen_array
+from training.core.status import TrainerStatus
 
 
 class LiveTrainer:
@@ -29,6 +36,7 @@ class LiveTrainer:
         self._structure_version = 0
         self._last_snapshot: ModelSnapshot | None = None
         self.events = EventSource(stage)
+        self._published = TrainerStatus(stage)
 
     def add_listener(self, listener) -> None:
         self.events.add_listener(listener)
@@ -36,10 +44,28 @@ class LiveTrainer:
     def remove_listener(self, listener) -> None:
         self.events.remove_listener(listener)
 
+    # ------------------------------------------------------------------ status
+    def status(self) -> TrainerStatus:
+        """Where the trainer is, as its last step (or the last change made to it) left it; any thread, never
+        waits."""
+        return self._published
+
+    def _publish_status(self, locked: bool = False) -> None:
+        """Build the status and swap it in (``locked``: the caller holds the model lock already)."""
+        if locked:
+            self._published = self._build_status()
+            return
+        with self._model_lock:
+            self._published = self._build_status()
+
+    def _build_status(self) -> TrainerStatus:
+        """The status now; called with the lock held."""
+        raise NotImplementedError
+
     # ------------------------------------------------------------------ config
     def update_config(self, **changes: Any):
-        """Validate ``changes`` now (ValueError naming the setting) and apply them at the start of the next step;
-        any thread. Returns the config the next step will use."""
+        """Validate ``changes`` now (ValueError naming the setting, or a setting only construction may set) and
+        apply them at the start of the next step; any thread. Returns the config the next step will use."""
         with self._model_lock:
             new = checked_config_changes(self._pending_config or self.config, changes, self.FIXED_AT_START,
                                          self._what)

@@ -1,13 +1,14 @@
 """What a trainer and whoever drives it (the CLI's progress bar, the viewer's session) pass to each other.
 
 Out of the trainer: ``TrainerEvent``s, one small typed form for both trainers, delivered to listeners registered
-with ``add_listener``; and ``ModelSnapshot``s, consistent numpy copies of what a viewer draws, with version numbers.
+with ``add_listener``; ``ModelSnapshot``s, consistent numpy copies of what a viewer draws, with version numbers; and
+the ``TrainerStatus`` it publishes after each step (status.py).
 Into the trainer: config changes (``update_config``), checked by ``checked_config_changes`` against the fields that
 only construction may set. A long call that loops over views takes a ``cancel`` callable and raises ``Cancelled``
 between views.
 
-Threading contract: a trainer's ``step()`` runs on one thread; ``snapshot()``, ``update_config()`` and
-``add_listener()`` may be called from any other. Listeners run on the trainer's thread and must not block.
+Threading contract: a trainer's ``step()`` runs on one thread; ``snapshot()``, ``status()``, ``update_config()``
+and ``add_listener()`` may be called from any other. Listeners run on the trainer's thread and must not block.
 """
 
 from __future__ import annotations

@@ -2,10 +2,10 @@
 
 ``Reconstructor(scene, config)`` (the settings: training/reconstruct/config.py) owns a Gaussian model, its Adam
 optimizer and a density-control strategy; ``step()`` runs one iteration on a random training view and returns its
-metrics. ``config`` is read afresh at every step, so a caller (CLI, viewer, test) may change it between steps, e.g.
-switch a regularizer off; from another thread, ``update_config(**changes)`` validates at once and applies at the
-start of the next step, refusing the settings only construction may set (``FIXED_AT_START``). ``snapshot()`` gives a
-viewer a consistent copy of the model from any thread; ``add_listener`` delivers the trainer's events
+metrics. Live settings (the viewer's, through its session) come by ``update_config(**changes)``, from any thread:
+validated at once, applied at the start of the next step, refusing the settings only construction may set
+(``FIXED_AT_START``). ``snapshot()`` gives a viewer a consistent copy of the model and ``status()`` where the run is
+(training/core/status.py), both from any thread; ``add_listener`` delivers the trainer's events
 (training/core/messages.py).
 
 Recipe (3DGS 2023 plus the paper):
@@ -33,6 +33,7 @@ import warnings
 import torch
 
 from training.core.live_trainer import LiveTrainer
+from training.core.status import TrainerStatus, scalars
 
 from training.reconstruct.config import FIXED_AT_START, ReconstructConfig
 from training.reconstruct.densify import PARAM_NAMES, DensifyStrategy
@@ -44,6 +45,7 @@ from training.scene.scene import Scene, over_background
 from training.reconstruct.ssim import ssim
 
 MAX_CONSECUTIVE_RECOVERIES = 20
+LOSSES = ("loss", "l1", "ssim", "psnr", "depth", "shape", "size")  # a step's figures its status carries
 
 
 # One pass over each parameter instead of Adam's eight (same update; at 60k Gaussians 14 -> 2 ms of CPU a step).
@@ -145,6 +147,8 @@ class Reconstructor(LiveTrainer):
         # write to the model's tensors (optimizer step, densification, restore), so a snapshot is never torn.
         self._init_live("reconstruction", "reconstruct")
         self._snapshot = self._take_snapshot()
+        self._last_losses: dict[str, float] = {}
+        self._publish_status()
 
     @property
     def total_iters(self) -> int:
@@ -164,6 +168,10 @@ class Reconstructor(LiveTrainer):
 
     def _snapshot_colours(self):
         return self.gaussians.sh, self.gaussians.sh_degree
+
+    def _build_status(self) -> TrainerStatus:
+        return TrainerStatus("reconstruct", self.step_count, self.total_iters, str(self.device), len(self.gaussians),
+                             self._structure_version, self.config, editable=True, losses=self._last_losses)
 
     def _model_changed(self) -> None:
         """Call with the lock held after any write to the model: every step moves the geometry too."""
@@ -190,6 +198,7 @@ class Reconstructor(LiveTrainer):
             self._model_changed()
             self._structure_changed()
             self._snapshot = self._take_snapshot()  # a NaN restore must not bring the removed ones back
+        self._publish_status()
         self.events.emit("structure", self.step_count, {"num_gaussians": len(self.gaussians)})
 
     def load_parameters(self, params: dict) -> None:
@@ -206,6 +215,7 @@ class Reconstructor(LiveTrainer):
             self._model_changed()
             self._structure_changed()
             self._snapshot = self._take_snapshot()
+        self._publish_status()
         self.events.emit("structure", self.step_count, {"num_gaussians": len(self.gaussians)})
 
     # ----------------------------------------------------------------------------------------------- set-up
@@ -337,6 +347,8 @@ class Reconstructor(LiveTrainer):
                 "psnr": psnr(rgb.clamp(0, 1), target), "lambda_depth": lam_depth if depth_t is not None else 0.0,
                 **terms, "num_gaussians": len(self.gaussians), "sh_degree": self.active_sh_degree, "view": view,
                 **counts, "recovered": False, "times": times, "raster_times": dict(info.get("timings", {}))}
+        self._last_losses = scalars(result, LOSSES)
+        self._publish_status()
         self.events.emit("step", i, {**result, "total_iters": self.total_iters})
         if restructured:
             self.events.emit("structure", i, {"num_gaussians": len(self.gaussians), **counts})
@@ -381,6 +393,7 @@ class Reconstructor(LiveTrainer):
         self.last_timings = times
         result = {"step": step, "loss": float("nan"), "psnr": float("nan"), "num_gaussians": len(self.gaussians),
                   "sh_degree": self.active_sh_degree, "view": view, "recovered": True, "times": times}
+        self._publish_status(locked=locked)
         self.events.emit("warning", step, message=message)
         self.events.emit("structure", step, {"num_gaussians": len(self.gaussians)})
         self.events.emit("step", step, {**result, "total_iters": self.total_iters})
@@ -431,3 +444,4 @@ class Reconstructor(LiveTrainer):
         self.init_source = state.get("init_source", self.init_source)
         self.recoveries = int(state.get("recoveries", 0))
         self._snapshot = self._take_snapshot()
+        self._publish_status()

@@ -5,7 +5,9 @@ Paper, "Implementation Details": {K, epsilon, tau, lambda_guide, lambda_CCFT, la
 {16, 0.05, 0.5, 1, 30, 0.005}. Supplementary, "Additional Implementation Details": 50 iterations per view with at
 least 2,000 in all for forward-facing scenes; 20 per view for 360-degree scenes of at most 200 views, 15 above.
 
-Where we depart from those figures (issue 37; docs/stylization.md, "The content balance", has the measurements):
+Where we depart from those figures (issue 37; docs/stylization.md, "The content balance", has the measurements;
+paper.tex lines 221-226: the content loss, "the MSE distance between rendered features and content features",
+colour attributes only, ARF's colour transfer before and after; line 232: the weights):
 the paper's content weight 0.005 is ARF's, for a mean-square content loss beside a style weight of 1, and with
 CCFT at 30 it leaves the content gradient at 2-3% of the style gradient: the painting replaces the scene. Our
 content term is relative (||X - X^||^2 / ||X^||^2) and its weight is set by one rule: the content and style

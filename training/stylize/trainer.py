@@ -8,10 +8,10 @@ goes before the first step and after the last (``finish()``), honouring a select
 renders are stylized_model.py's; a checkpoint's state is checkpoint.py's; the report's style distance is
 style_distance.py's.
 
-The config may change between steps (the viewer's sliders): ``update_config(**changes)`` from any thread is
-validated at once and applied at the start of the next step; the settings that shape the run (``FIXED_AT_START``)
-are refused. ``snapshot()`` gives a viewer a consistent copy of the model from any thread; ``add_listener``
-delivers the trainer's events (training/core/messages.py).
+The config may change between steps (the viewer's sliders, through its session): ``update_config(**changes)`` from
+any thread is validated at once and applied at the start of the next step; the settings that shape the run
+(``FIXED_AT_START``) are refused. ``snapshot()`` (the model) and ``status()`` (status.py) serve a viewer from any
+thread; ``add_listener`` delivers the trainer's events (training/core/messages.py).
 """
 
 from __future__ import annotations
@@ -41,6 +41,7 @@ from training.stylize.region import (as_mask, coverage_from_render, indicator_sh
                                      pre_color_transfer, transfer_to_selection)
 from training.stylize.scene_match import check_model_matches_scene, check_renders_not_empty
 from training.stylize.style_image import check_style_array
+from training.stylize.status import UTILISATION, stylize_status
 from training.stylize.step import StageTimes, StepTimer, gradient_step
 from training.stylize.stylized_model import StylizedModel
 from training.stylize.view_schedule import ViewSchedule
@@ -118,10 +119,11 @@ class Stylizer(LiveTrainer):
         self.last_stats: dict[str, Any] = {}
         self.history: list[dict[str, float]] = []
         self.finished = False
-        self._capacity: np.ndarray | None = None
+        self.capacity: np.ndarray | None = None  # the last CCFT plan's (plan_readouts.py), swapped in whole
         # Threads: step() runs on one; snapshot() and update_config() may come from another. The lock covers every
         # write to the model's tensors (and their replacement), so a snapshot never sees half an update.
         self._init_live("stylization", "stylize")
+        self._publish_status()
 
     # ------------------------------------------------------------------ where the run is (view_schedule.py)
     iters_per_view = property(lambda self: self.views.iters_per_view(self.config))
@@ -135,10 +137,7 @@ class Stylizer(LiveTrainer):
         """(pass, passes): the pass the next step belongs to (1-based) and how many the schedule makes."""
         return self.views.pass_progress(self.iteration, self.config)
 
-    def capacity_map(self) -> np.ndarray | None:
-        """(h, w) float32 column mass of the last CCFT plan on the painting's feature grid (plan_readouts.py; None
-        before the first CCFT step). Any thread."""
-        return self._capacity
+    _build_status = stylize_status
 
     # ------------------------------------------------------------------ rendering and features
     # the model being stylized; stylized_model.py holds it with the input model and the selection
@@ -199,8 +198,7 @@ class Stylizer(LiveTrainer):
         self._sync()
         timer = StepTimer(self.device)
         result, capacity = gradient_step(self, timer)
-        if capacity is not None:  # swapped in whole: a reader on another thread sees the previous map or this one
-            self._capacity = capacity
+        self.capacity = self.capacity if capacity is None else capacity  # kept until the next plan
         timer.start()
         m = self.model
         with self._model_lock:
@@ -213,8 +211,10 @@ class Stylizer(LiveTrainer):
         self.history.append({k: result[k] for k in ("iteration", "loss", "style_loss", "content_loss", "grad_style",
                                                     "grad_content")})
         self.iteration += 1
+        moved = self.views.advance(self.config)
+        self._publish_status()
         self.events.emit("step", self.iteration, {**result, "total_iters": self.total_iters})
-        if self.views.advance(self.config):
+        if moved:
             self.events.emit("view", self.iteration, {"trajectory_position": self.views.position,
                                                       "view_index": self.views.current.source_index,
                                                       "virtual": self.views.current.is_virtual})
@@ -275,6 +275,7 @@ class Stylizer(LiveTrainer):
             self.feature_cache.content.clear()  # a virtual view's content is a render of the model
             self._model_changed(geometry=True)
             self._structure_changed()
+        self._publish_status()
         self.events.emit("structure", self.iteration, {"num_gaussians": len(self.gaussians)})
 
     # ------------------------------------------------------------------ after
@@ -312,9 +313,7 @@ class Stylizer(LiveTrainer):
 
     def utilisation(self) -> dict[str, float]:
         """Style-feature utilisation of the last iteration (whatever the loss reported)."""
-        keys = ("utilisation", "column_entropy", "column_entropy_normalised", "reachable_fraction",
-                "distinct_fraction", "distinct_count")
-        return {k: self.last_stats[k] for k in keys if k in self.last_stats}
+        return {k: self.last_stats[k] for k in UTILISATION if k in self.last_stats}
 
     def config_dict(self) -> dict[str, Any]:
         return asdict(replace(self.config))
@@ -338,6 +337,7 @@ class Stylizer(LiveTrainer):
             if self.finished:
                 self.model.frozen = self.gaussians.detached()
             self._model_changed(geometry=self.model.trains_geometry)
+        self._publish_status()
 
 
 def _resize(image: np.ndarray, camera: Camera) -> np.ndarray:

@@ -1,0 +1,27 @@
+"""What a stylization publishes about itself after each step (training/core/status.py): its trajectory and where
+on it the next step is, the pass, the last plan's capacity map and utilisation, the losses and the balance of the
+content and style gradients."""
+
+from __future__ import annotations
+
+from training.core.status import TrainerStatus, TrajectoryStop, scalars
+
+LOSSES = ("loss", "style_loss", "content_loss", "grad_style", "grad_content")
+UTILISATION = ("utilisation", "column_entropy", "column_entropy_normalised", "reachable_fraction",
+               "distinct_fraction", "distinct_count")
+
+
+def stylize_status(stylizer) -> TrainerStatus:
+    """The status of ``stylizer`` now (a ``Stylizer``; called with its model lock held)."""
+    stats = stylizer.last_stats
+    # the trajectory is fixed when the run starts: the stops are made once
+    stops = stylizer.status().trajectory or tuple(TrajectoryStop(item.source_index, item.camera.center,
+                                                                 item.is_virtual) for item in stylizer.trajectory)
+    balance = stats.get("content_to_style")
+    return TrainerStatus(
+        "stylize", stylizer.iteration, stylizer.total_iters, str(stylizer.device), len(stylizer.gaussians),
+        stylizer.structure_version, stylizer.config, editable=True, losses=scalars(stats, LOSSES),
+        trajectory=stops, trajectory_position=stylizer.trajectory_position,
+        pass_progress=stylizer.pass_progress(), capacity=stylizer.capacity,
+        utilisation=scalars(stats, UTILISATION), gradient_balance=None if balance is None else float(balance),
+        colour_only=stylizer.config.params == "colour")
