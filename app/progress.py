@@ -36,6 +36,7 @@ class ProgressBar:
         self.bar = None
         self._psnr_ema: float | None = None
         self._test: dict[str, str] = {}  # the test views' last score, kept beside each step's metrics
+        self._shown: dict[str, str | int] = {}
 
     def __call__(self, event: TrainerEvent) -> None:
         if event.kind == "test" and event.metrics.get("test_psnr") is not None:
@@ -52,9 +53,9 @@ class ProgressBar:
         elif total is not None and total != self.bar.total:
             self.bar.total = total
         if not m.get("recovered", 0.0):
-            shown = {}
+            shown = self._shown  # a metric a step did not measure keeps the value it last had (or is left out)
             for key, label in self.postfix.items():
-                if m.get(key) is not None:  # a metric a step did not measure is left out, not "None"
+                if m.get(key) is not None:
                     value = m[key]
                     if key == "psnr":
                         self._psnr_ema = value if self._psnr_ema is None else 0.9 * self._psnr_ema + 0.1 * value

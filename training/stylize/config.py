@@ -36,7 +36,7 @@ RANGES: dict[str, tuple[float, float, bool]] = {
 
 
 # the fields by kind, each checked by ``validate`` (a None in OPTIONAL means "from the preset / the paper")
-WHOLE_NUMBERS = ("k", "sinkhorn_iters", "iters_per_view", "min_total_iters", "seed", "virtual_views", "max_side")
+WHOLE_NUMBERS = ("k", "balance_every", "sinkhorn_iters", "iters_per_view", "min_total_iters", "seed", "virtual_views", "max_side")
 NUMBERS = ("tau", "epsilon", "lambda_guide", "lambda_style", "lambda_content", "lr", "style_scale", "lambda_tv",
            "lr_final")
 FLAGS = ("dc_only", "color_transfer", "measure_balance")
@@ -61,7 +61,8 @@ class StylizeConfig:
     lambda_tv: float = D.LAMBDA_TV  # total variation of the render
     lr: float | None = None  # Adam learning rate of sh0 (shN: lr / 20); None: DEFAULT_LR
     lr_final: float = D.LR_FINAL  # the rate decays exponentially to lr * lr_final at the last iteration
-    measure_balance: bool = True  # the style and content gradients' norms on the render, every step
+    measure_balance: bool = True  # the style and content gradients' norms on the render (the balance) ...
+    balance_every: int = D.BALANCE_EVERY  # ... measured every this many steps (each costs a VGG backward pass)
     iters_per_view: int | None = None
     min_total_iters: int | None = None
     scene_kind: str = "auto"  # auto | forward | 360
@@ -114,6 +115,7 @@ class StylizeConfig:
             raise ValueError(f"params must be one of {', '.join(PARAMS)}, got {self.params!r}")
         checks = [("k", self.k >= 1, "at least 1"), ("epsilon", self.epsilon > 0, "positive"),
                   ("tau", self.tau > 0, "positive"), ("sinkhorn_iters", self.sinkhorn_iters >= 1, "at least 1"),
+                  ("balance_every", self.balance_every >= 1, "at least 1"),
                   ("lambda_content", self.lambda_content >= 0, "at least 0"),
                   ("style_scale", 0 < self.style_scale <= MAX_STYLE_SCALE, f"in (0, {MAX_STYLE_SCALE:g}]"),
                   ("lambda_tv", self.lambda_tv >= 0, "at least 0"),

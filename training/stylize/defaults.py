@@ -40,6 +40,8 @@ CONTENT_SOURCE = "render"  # the input model (what the user made); "photo": ARF'
 STYLE_SCALE = 2.0  # the painting's long side over the render's
 MAX_STYLE_SCALE = 16.0
 LAMBDA_TV = 40.0
+# The balance moves slowly (a curve over hundreds of steps); measured every step it cost a third of the backward.
+BALANCE_EVERY = 10
 LR_FINAL = 0.1  # the rate decays exponentially to a tenth by the last iteration
 DC_ONLY = True
 
