@@ -11,7 +11,7 @@ import numpy as np
 
 from training.scene.scene import Camera
 from training.stylize import defaults as D
-from training.stylize.defaults import (CONTENT_NORMS, CONTENT_SOURCES, MAX_STYLE_SCALE, FORWARD_ITERS_PER_VIEW, FORWARD_MIN_TOTAL, LOSSES, ORBIT_ITERS_PER_VIEW,
+from training.stylize.defaults import (CONTENT_NORMS, VGG_PRECISIONS, CONTENT_SOURCES, MAX_STYLE_SCALE, FORWARD_ITERS_PER_VIEW, FORWARD_MIN_TOTAL, LOSSES, ORBIT_ITERS_PER_VIEW,
                                        ORBIT_ITERS_PER_VIEW_MANY, ORBIT_MANY_VIEWS, PAPER_MAX_SIDE, PARAMS, PRESETS,
                                        QUICK_ITER_FRACTION, QUICK_MAX_SIDE, SCENE_KINDS, SCHEDULES,
                                        STANDARD_MAX_SIDE, VIEW_ORDERS)
@@ -23,7 +23,7 @@ DEFAULT_LR = D.LR
 # device, which parameters the optimiser holds): update_config refuses them rather than ignore them, and a
 # checkpoint's fingerprint holds them (checkpoint.py).
 FIXED_AT_START = ("view_order", "virtual_views", "preset", "device", "color_transfer", "background", "scene_kind",
-                  "max_side", "seed", "params", "schedule", "content_source")
+                  "max_side", "seed", "params", "schedule", "content_source", "vgg_precision")
 
 
 # The useful span of each numeric setting (low, high, logarithmic): what a live control offers. ``validate`` is
@@ -62,6 +62,7 @@ class StylizeConfig:
     lr: float | None = None  # Adam learning rate of sh0 (shN: lr / 20); None: DEFAULT_LR
     lr_final: float = D.LR_FINAL  # the rate decays exponentially to lr * lr_final at the last iteration
     measure_balance: bool = True  # the style and content gradients' norms on the render (the balance) ...
+    vgg_precision: str = D.VGG_PRECISION  # float32 | bfloat16 | auto (bfloat16 on a CPU that has it natively)
     balance_every: int = D.BALANCE_EVERY  # ... measured every this many steps (each costs a VGG backward pass)
     iters_per_view: int | None = None
     min_total_iters: int | None = None
@@ -109,6 +110,8 @@ class StylizeConfig:
         if self.content_source not in CONTENT_SOURCES:
             raise ValueError(f"content_source must be one of {', '.join(CONTENT_SOURCES)}, got "
                              f"{self.content_source!r}")
+        if self.vgg_precision not in VGG_PRECISIONS:
+            raise ValueError(f"vgg_precision must be one of {', '.join(VGG_PRECISIONS)}, got {self.vgg_precision!r}")
         if self.content_norm not in CONTENT_NORMS:
             raise ValueError(f"content_norm must be one of {', '.join(CONTENT_NORMS)}, got {self.content_norm!r}")
         if self.params not in PARAMS:  # worded "<field> ..." so the CLI can name the flag

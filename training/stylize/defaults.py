@@ -42,6 +42,8 @@ MAX_STYLE_SCALE = 16.0
 LAMBDA_TV = 40.0
 # The balance moves slowly (a curve over hundreds of steps); measured every step it cost a third of the backward.
 BALANCE_EVERY = 10
+VGG_PRECISIONS = ("float32", "bfloat16", "auto")
+VGG_PRECISION = "float32"
 LR_FINAL = 0.1  # the rate decays exponentially to a tenth by the last iteration
 DC_ONLY = True
 
