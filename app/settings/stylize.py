@@ -49,7 +49,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         f"features are whole motifs)")
     p.add_argument("--vgg-precision", choices=D.VGG_PRECISIONS, default=D.VGG_PRECISION,
                    help=f"VGG's arithmetic: float32, bfloat16, or auto (bfloat16 on a CPU that has it natively, "
-                        f"AVX512-BF16 or AMX) (default {D.VGG_PRECISION})")
+                        f"AVX512-BF16 or AMX; float32 elsewhere and on CUDA) (default {D.VGG_PRECISION}; the "
+                        f"report's vgg_arithmetic says which ran)")
     p.add_argument("--lambda-tv", type=float, default=D.LAMBDA_TV,
                    help=f"total-variation weight on the render (default {D.LAMBDA_TV:g})")
     p.add_argument("--lr", type=float, default=None,
