@@ -26,7 +26,7 @@ def redraw_timing(stream=None) -> dict[str, float]:
 
 class ProgressBar:
     """A listener (``trainer.add_listener(bar)``): "step" events advance the bar and show the metrics named in
-    ``postfix`` (event metric -> label; ``psnr`` is smoothed). The bar appears with the first step, so an error
+    ``postfix`` (event metric -> label; ``psnr`` is smoothed) with the last "test" event's PSNR. The bar appears with the first step, so an error
     before training leaves no empty bar behind, counting from the step before that one's (a resumed run's bar starts
     where it resumed); its total follows the trainer's (a schedule may change live)."""
 
@@ -35,8 +35,12 @@ class ProgressBar:
         self.postfix = postfix or {}
         self.bar = None
         self._psnr_ema: float | None = None
+        self._test: dict[str, str] = {}  # the test views' last score, kept beside each step's metrics
+        self._shown: dict[str, str | int] = {}
 
     def __call__(self, event: TrainerEvent) -> None:
+        if event.kind == "test" and event.metrics.get("test_psnr") is not None:
+            self._test = {"test": f"{event.metrics['test_psnr']:.2f} dB"}
         if event.kind != "step":
             return
         m = event.metrics
@@ -49,15 +53,15 @@ class ProgressBar:
         elif total is not None and total != self.bar.total:
             self.bar.total = total
         if not m.get("recovered", 0.0):
-            shown = {}
+            shown = self._shown  # a metric a step did not measure keeps the value it last had (or is left out)
             for key, label in self.postfix.items():
-                if m.get(key) is not None:  # a metric a step did not measure is left out, not "None"
+                if m.get(key) is not None:
                     value = m[key]
                     if key == "psnr":
                         self._psnr_ema = value if self._psnr_ema is None else 0.9 * self._psnr_ema + 0.1 * value
                         value = self._psnr_ema
                     shown[label] = int(value) if float(value).is_integer() else f"{value:.4g}"
-            self.bar.set_postfix(shown, refresh=False)
+            self.bar.set_postfix({**shown, **self._test}, refresh=False)
         self.bar.update(max(0, event.step - self.bar.n))
 
     def close(self) -> None:

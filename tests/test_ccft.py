@@ -211,6 +211,54 @@ def test_guide_map_is_the_plan_weighted_mean_and_changes_the_support():
     assert torch.equal(guided.plan.indices, torch.topk(S, k, dim=1).indices)
 
 
+def test_bfloat16_search_finds_the_float32_top_k():
+    """The bfloat16 product only proposes candidates: float32 scores decide and uncertain rows are searched again in
+    float32, so the support is float32's, for features whose top scores are far apart and for near-ties (rows that
+    take the float32 fallback), guided or not."""
+    from training.stylize.ccft import topk_support
+
+    g = torch.Generator().manual_seed(30)
+    n, m, c, k = 300, 2000, 96, 8
+    X = l2_normalise(relu_features(n, c, 31, torch.float32))
+    Y = l2_normalise(relu_features(m, c, 32, torch.float32))
+    near = l2_normalise(1.0 + 0.05 * torch.rand(m, c, generator=g))  # top scores within bfloat16's error
+    G = l2_normalise(relu_features(m, c, 33, torch.float32))
+    for Z in (Y, Y + G, near):
+        S = X @ Z.t()
+        ref = torch.topk(S, k + 1, dim=1).values
+        clear = (ref[:, k - 1] - ref[:, k]) > 1e-5  # rows whose top k is not decided by a float32 tie
+        a = topk_support(X, Z, k, precision="float32")
+        b = topk_support(X, Z, k, precision="bfloat16", chunk_elements=m * 64 + 5)
+        assert torch.equal(a.sort(dim=1).values[clear], b.sort(dim=1).values[clear])
+        assert int(clear.sum()) > n // 2
+
+
+def test_float32_row_kernels_match_the_dense_products():
+    """On the CPU in float32 the support's row products (training/stylize/support_cpu.py: the costs, their gradient,
+    the guide map) give the dense float64 products' numbers to float32 rounding, and ccft_loss in float32 (which
+    runs on them) the float64 loss's support, costs and guide map."""
+    from training.stylize.support_cpu import gather_add, gather_dot, scatter_add
+
+    n, m, c, k = 120, 90, 40, 7
+    X, Y = relu_features(n, c, 34), relu_features(m, c, 35)
+    idx = torch.randint(0, m, (n, k), generator=torch.Generator().manual_seed(1))
+    W = relu_features(n, k, 36)
+    dots = np.empty((n, k), np.float32)
+    gather_dot(X.float().numpy(), Y.float().numpy(), idx.numpy(), dots)
+    np.testing.assert_allclose(dots, (X.unsqueeze(1) * Y[idx]).sum(-1).numpy(), rtol=1e-5, atol=1e-5)
+    added = np.empty((n, c), np.float32)
+    gather_add(W.float().numpy(), Y.float().numpy(), idx.numpy(), added)
+    np.testing.assert_allclose(added, (W.unsqueeze(-1) * Y[idx]).sum(1).numpy(), rtol=1e-5, atol=1e-5)
+    dense = torch.zeros(n, m, dtype=torch.float64).scatter_add_(1, idx, W)
+    np.testing.assert_allclose(scatter_add(W.numpy(), X.numpy(), idx.numpy(), m), (dense.t() @ X).numpy(),
+                               rtol=1e-5, atol=1e-5)
+    r64 = ccft_loss(X, Y, k=k)
+    r32 = ccft_loss(X.float().requires_grad_(True), Y.float(), k=k)
+    assert torch.equal(r32.plan.indices, r64.plan.indices)
+    torch.testing.assert_close(r32.cost.double(), r64.cost, rtol=0, atol=2e-6)
+    torch.testing.assert_close(r32.guide.double(), r64.guide, rtol=0, atol=2e-6)
+
+
 def test_bad_arguments():
     X, Y = relu_features(10, 4, 20), relu_features(12, 4, 21)
     with pytest.raises(ValueError):

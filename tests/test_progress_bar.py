@@ -34,3 +34,16 @@ def test_a_terminal_still_sees_the_bar_move(monkeypatch):
     shown = _run(_Terminal(), monkeypatch)
     assert shown.count("\r") >= 5
     assert "120/120" in shown
+
+
+def test_the_line_keeps_the_test_views_last_score(monkeypatch):
+    """A "test" event (the run scored its held-out views) stays in the line beside each later step's metrics."""
+    stream = _Terminal()
+    monkeypatch.setattr(sys, "stderr", stream)
+    bar = ProgressBar(desc="reconstruct", postfix={"loss": "loss"})
+    bar(TrainerEvent("step", "reconstruct", 1, {"loss": 0.5, "total_iters": 3}))
+    bar(TrainerEvent("test", "reconstruct", 1, {"test_psnr": 21.234, "test_ssim": 0.7}))
+    for i in (2, 3):
+        bar(TrainerEvent("step", "reconstruct", i, {"loss": 0.25, "total_iters": 3}))
+    bar.close()
+    assert "test=21.23 dB" in stream.getvalue().rsplit("\r", 1)[-1]

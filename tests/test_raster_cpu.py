@@ -238,7 +238,7 @@ def _colour_step(scene, w, h, sh_degree, mode, colors, weights):
 
 @pytest.mark.parametrize("sh_degree,mode", [(3, "RGB"), (None, "RGB+D")])
 def test_frozen_geometry_replay_is_bit_identical(sh_degree, mode):
-    """Colour-only steps on one view reuse the projection, then replay the recorded pair weights: every step's
+    """Colour-only steps on one view reuse the projection, then replay the recorded pairs: every step's
     image, alpha and colour gradient equal an uncached render's bit for bit."""
     from training.raster.cpu import FROZEN
 
@@ -249,7 +249,7 @@ def test_frozen_geometry_replay_is_bit_identical(sh_degree, mode):
     FROZEN.clear()
     cached = [_colour_step(scene, w, h, sh_degree, mode, scene[4] * (1 + 0.1 * i), weights) for i in range(4)]
     entry = FROZEN.newest
-    assert entry is not None and entry.fwd is not None and entry.bwd is not None  # the later steps replayed
+    assert entry is not None and entry.records is not None  # the later steps replayed
     for i, got in enumerate(cached):
         FROZEN.clear()
         ref = _colour_step(scene, w, h, sh_degree, mode, scene[4] * (1 + 0.1 * i), weights)
@@ -259,7 +259,7 @@ def test_frozen_geometry_replay_is_bit_identical(sh_degree, mode):
 
 def test_frozen_geometry_is_kept_for_every_view_of_a_cycle():
     """An interleaved stylization renders view 0, 1, 2, 0, 1, 2, ...: each camera keeps its own entry (one copy of
-    the geometry), records on its second visit and replays from its third, bit-identical to uncached renders. Past
+    the geometry), records on its first visit and replays from its second, bit-identical to uncached renders. Past
     the cache's budget the first views stay served and the others are computed each time, still exactly."""
     from training.raster.cpu import FROZEN
 
@@ -281,7 +281,7 @@ def test_frozen_geometry_is_kept_for_every_view_of_a_cycle():
             cached = [_colour_step(views[i % 3], w, h, 3, "RGB", scene[4] * (1 + 0.1 * i), weights) for i in range(9)]
             assert len(FROZEN) == kept
             entries = FROZEN.entries()
-            assert all(e.fwd is not None and e.bwd is not None for e in entries) == (kept == 3)
+            assert all(e.records is not None for e in entries) == (kept == 3)
             assert all(e.key_arrays[0] is entries[0].key_arrays[0] for e in entries)  # one geometry copy
             for i, got in enumerate(cached):
                 FROZEN.clear()

@@ -146,6 +146,28 @@ def test_checkpoint_round_trip_continues_identically(scene, tmp_path):
         torch.testing.assert_close(b.gaussians.parameters()[k], v, atol=1e-5, rtol=1e-4)
 
 
+def test_a_checkpoint_of_the_unfused_adam_resumes_on_the_fused_one(scene, tmp_path):
+    """Checkpoints made before the trainer used the fused Adam carry fused=False in their param groups; loading
+    one keeps the fast implementation, and the moments carry on (the same update as the unfused Adam's)."""
+    cfg = _cfg(iterations=40, densify=DensifyConfig(start=5, stop=30, interval=5, reset_every=0, max_gaussians=1500))
+    a = Reconstructor(scene, cfg)
+    groups = [{"params": g["params"], "lr": g["lr"], "name": g["name"]} for g in a.optimizer.param_groups]
+    a.optimizer = torch.optim.Adam(groups, lr=0.0, eps=1e-15, fused=False)  # as they were
+    for _ in range(8):
+        a.step()
+    save_checkpoint(tmp_path / "c.pt", a.state_dict())
+    state = load_checkpoint(tmp_path / "c.pt")
+    assert not any(g["fused"] for g in state["optimizer"]["param_groups"])
+    b = Reconstructor(scene, ReconstructConfig.from_dict(state["config"]))
+    b.load_state_dict(state)
+    assert all(g["fused"] for g in b.optimizer.param_groups)
+    for _ in range(3):
+        ma, mb = a.step(), b.step()
+        assert ma["view"] == mb["view"] and not mb["recovered"]
+    for k, v in a.gaussians.parameters().items():
+        torch.testing.assert_close(b.gaussians.parameters()[k], v, atol=1e-5, rtol=1e-4)
+
+
 @pytest.mark.slow
 def test_shape_and_size_regularizers_bound_the_scales(scene):
     """Start from deliberately needle-like, oversized Gaussians: with the regularizers the 95th percentiles of

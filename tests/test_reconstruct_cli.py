@@ -133,6 +133,47 @@ def test_bench_reconstruct_reports_phases(demo_folder, capsys):
     assert min(rows[0][f"ms_{k}"] for k in ("rasterize", "loss", "backward")) > 0
     assert rows[0]["it_per_s"] == pytest.approx(1e3 / rows[0]["ms_total"])
     assert 3 * rows[0]["ms_total"] < wall_ms  # the 3 timed iterations ran inside the call
+    # the phases apart (SSIM and each regularizer apart from the loss), summing to the step with "other"
+    from training.reconstruct.trainer import PHASES
+
+    assert {"ssim", "shape", "size", "depth", "checks"} <= set(PHASES)
+    assert min(rows[0][f"ms_{k}"] for k in ("ssim", "shape", "size", "depth", "checks")) > 0
+    assert sum(rows[0][f"ms_{k}"] for k in (*PHASES, "other")) == pytest.approx(rows[0]["ms_total"])
+    # and the cpu rasterizer's own stages, its backward's inside the step's backward
+    raster = {k[len("ms_raster_"):]: v for k, v in rows[0].items() if k.startswith("ms_raster_")}
+    assert {"project", "sort", "sh", "composite", "composite_bwd", "project_sh_bwd"} <= set(raster)
+    assert raster["composite_bwd"] + raster["project_sh_bwd"] <= rows[0]["ms_backward"]
+
+
+@pytest.mark.slow
+def test_bench_reconstruct_from_a_checkpoint(demo_folder, tmp_path, capsys):
+    """--checkpoint times the steps that follow a run's checkpoint: its model, optimiser and schedule position."""
+    out = tmp_path / "run"
+    rc, _ = _run([demo_folder, "-o", out, "--iters", "20", "--max-gaussians", "700"], capsys)
+    assert rc == 0
+    n = json.loads((out / "report.json").read_text())["num_gaussians"]
+    rc = main(["bench", "reconstruct", "--scene", str(demo_folder), "--checkpoint", str(out / "checkpoint.pt"),
+               "--iters", "3", "--warmup", "1", "--backends", "cpu", "--json"])
+    assert rc == 0
+    rows = [json.loads(line) for line in capsys.readouterr().out.splitlines() if line.startswith("{")]
+    assert rows[0]["steps"] == "22-24" and rows[0]["size"] == "64x48"
+    assert rows[0]["gaussians_end"] == n  # densification stopped before step 20 of 20: the model as saved
+    rc = main(["bench", "reconstruct", "--checkpoint", str(out / "checkpoint.pt"), "--iters", "1"])
+    assert rc == 2 and "--scene" in capsys.readouterr().err
+
+
+def test_eval_every_scores_the_test_views_into_the_report(demo_folder, tmp_path, capsys):
+    """--eval-every N: the test views' PSNR every N iterations (and at the end), kept in report.json; the last point
+    is the report's own test PSNR."""
+    out = tmp_path / "curve"
+    rc, _ = _run([demo_folder, "-o", out, "--iters", "12", "--eval-every", "5"], capsys)
+    assert rc == 0
+    report = json.loads((out / "report.json").read_text())
+    assert [p["iteration"] for p in report["test_curve"]] == [5, 10, 12]
+    assert report["test_curve"][-1]["psnr"] == pytest.approx(report["test_psnr"])
+    assert 0 < report["test_curve_seconds"] < report["seconds"]
+    rc, cap = _run([demo_folder, "-o", tmp_path / "bad", "--iters", "2", "--eval-every", "-1"], capsys)
+    assert rc == 2 and "--eval-every" in cap.err and not (tmp_path / "bad").exists()
 
 
 def test_resume_refuses_settings_that_differ_from_the_checkpoint(demo_folder, tmp_path, capsys):
@@ -153,10 +194,13 @@ def test_resume_refuses_settings_that_differ_from_the_checkpoint(demo_folder, tm
     assert "--seed" not in cap.err and "--iters" not in cap.err  # the checkpoint's own value; a longer run
     assert (out / "checkpoint.pt").read_bytes() == before
     rc, cap = _run([demo_folder, "-o", out, "--resume", "--iters", "10", "--max-gaussians", "500", "--seed", "2",
-                    "--backend", "torch"], capsys)
+                    "--backend", "torch", "--eval-every", "1"], capsys)
     assert rc == 0 and "at iteration 8" in cap.err, cap.err
-    config = json.loads((out / "report.json").read_text())["settings"]["config"]
+    report = json.loads((out / "report.json").read_text())
+    config = report["settings"]["config"]
     assert config["iterations"] == 10 and config["backend"] == "torch" and config["densify"]["max_gaussians"] == 500
+    # the scoring may change on a resume (--eval-every 1: the resumed iterations 9 and 10 scored)
+    assert config["eval_every"] == 1 and [p["iteration"] for p in report["test_curve"]][-2:] == [9, 10]
 
 
 def test_a_fresh_run_does_not_replace_an_interrupted_runs_checkpoint(demo_folder, tmp_path, capsys, monkeypatch):
@@ -187,3 +231,37 @@ def test_a_fresh_run_does_not_replace_an_interrupted_runs_checkpoint(demo_folder
     assert rc == 0 and "resuming" not in cap.err
     rc, _ = _run([demo_folder, "-o", out, "--iters", "4"], capsys)  # over a finished run: its files are replaced
     assert rc == 0 and json.loads((out / "report.json").read_text())["iterations"] == 4
+
+
+def test_stop_when_flat_ends_the_run_and_keeps_the_best_model(demo_folder, tmp_path, capsys, monkeypatch):
+    """--stop-when-flat N: once densification has stopped (step 30 of 60 here), the run ends when the test views'
+    PSNR has not risen by 0.05 dB for N iterations, and the best-scoring model is the one written, saying so."""
+    from training.reconstruct.trainer import Reconstructor
+
+    real = Reconstructor.evaluate
+    kept = {}
+
+    def evaluate(self, indices):
+        result = real(self, indices)
+        step = self.step_count
+        if not kept.get("final"):  # the scores during the run: rising to step 40, then falling
+            result["psnr"] = 20.0 + 0.1 * min(step, 40) - 0.2 * max(0, step - 40)
+            if step == 40:
+                kept["params"] = {k: v.detach().clone() for k, v in self.gaussians.parameters().items()}
+        return result
+
+    monkeypatch.setattr(Reconstructor, "evaluate", evaluate)
+    out = tmp_path / "flat"
+    rc, cap = _run([demo_folder, "-o", out, "--iters", "60", "--eval-every", "5", "--stop-when-flat", "10"],
+                   capsys)
+    assert rc == 0, cap.err
+    report = json.loads((out / "report.json").read_text())
+    assert report["iterations"] == 50 and [p["iteration"] for p in report["test_curve"]][-1] == 50
+    assert report["early_stop"]["stopped_at"] == 50 and report["early_stop"]["best_iteration"] == 40
+    assert report["early_stop"]["kept"] == "best"
+    assert "stopped at iteration 50 of 60" in cap.err and "kept the model of iteration 40" in cap.err
+    written = read_ply(out / "point_cloud.ply")
+    for name, value in kept["params"].items():
+        torch.testing.assert_close(getattr(written, name), value, rtol=1e-6, atol=1e-6)
+    rc, cap = _run([demo_folder, "-o", tmp_path / "bad", "--iters", "2", "--stop-when-flat", "-1"], capsys)
+    assert rc == 2 and "--stop-when-flat" in cap.err

@@ -3,6 +3,7 @@
 import math
 
 import numpy as np
+import pytest
 import torch
 
 from training.reconstruct.metrics import psnr
@@ -64,3 +65,30 @@ def test_psnr_definition():
     b = torch.full((4, 4, 3), 0.1)
     assert abs(psnr(a, b) - 20.0) < 1e-5  # mse 0.01 -> 20 dB (0.1 in float32)
     assert psnr(a, a) == math.inf
+
+
+def test_cpu_ssim_kernels_match_the_direct_computation_and_autograd():
+    """The numba path (a float32 render on the CPU against a photo) gives the float64 direct SSIM and the gradient
+    autograd takes through the torch convolutions, at a training render's size and at sizes below the window."""
+    from training.reconstruct.ssim import gaussian_window_1d
+    from training.reconstruct.ssim_cpu import ssim_cpu
+
+    rng = np.random.default_rng(3)
+    for shape in [(17, 13, 3), (5, 4, 1), (96, 71, 4)]:
+        a = rng.uniform(0, 1, shape)
+        b = np.clip(a + rng.normal(0, 0.1, shape), 0, 1)
+        x = torch.from_numpy(a).float().requires_grad_(True)
+        y = torch.from_numpy(b).float()
+        fast = ssim_cpu(x, y, gaussian_window_1d().numpy())
+        fast.backward()
+        if shape[0] < 20:
+            assert abs(float(fast.detach()) - _ssim_direct(a, b).mean()) < 2e-6
+        ref_x = torch.from_numpy(a).requires_grad_(True)  # float64 through torch's convolutions
+        ssim_map(ref_x, torch.from_numpy(b)).mean().backward()
+        assert abs(float(fast.detach()) - float(ssim_map(ref_x.detach(), torch.from_numpy(b)).mean())) < 2e-6
+        scale = float(ref_x.grad.abs().max())
+        assert float((x.grad.double() - ref_x.grad).abs().max()) < 1e-5 * scale
+    # ssim() takes this path for such inputs, and the torch one where the target needs a gradient
+    assert ssim(x.detach(), y).grad_fn is None and float(ssim(x.detach(), y)) == pytest.approx(float(fast.detach()), abs=1e-7)
+    y.requires_grad_(True)
+    assert "Mean" in type(ssim(x.detach(), y).grad_fn).__name__

@@ -200,3 +200,24 @@ def test_load_vgg16_features_with_explicit_file(lpips_weights, tmp_path, capsys)
     assert not model.training
     with pytest.raises(ValueError):
         model(torch.zeros(1, 1, 16, 16))
+
+
+def test_bfloat16_features_stay_within_a_percent_of_float32(vgg):
+    """--vgg-precision bfloat16 (the default where the CPU has it): the features a stylization compares, of a real
+    photo and the painting, within 1 % of float32's, in float32; auto never picks bfloat16 on CUDA."""
+    from training.stylize.feature_cache import FeatureCache, vgg_in_bfloat16
+
+    if not SHARED.is_dir():
+        pytest.skip(f"{SHARED} (the shared real data) is absent")
+    photo = _load_rgb(SHARED / "data/scenes/fox/images/0001.jpg", 256)[0].permute(1, 2, 0).contiguous()
+    painting = np.asarray(_load_rgb(SHARED / "data/styles/starry_night.jpg", 256)[0].permute(1, 2, 0))
+    cpu = torch.device("cpu")
+    full, half = FeatureCache(vgg, painting, cpu), FeatureCache(vgg, painting, cpu, bfloat16=True)
+    with torch.no_grad():
+        for f32, bf in ((full.features(photo), half.features(photo)),
+                        (full.style_features(256, 192, 2.0), half.style_features(256, 192, 2.0))):
+            assert bf.dtype == torch.float32 and bf.shape == f32.shape
+            assert float((bf - f32).norm() / f32.norm()) < 0.01
+            assert not torch.equal(bf, f32)  # it did run in bfloat16
+    assert vgg_in_bfloat16("bfloat16", cpu) and not vgg_in_bfloat16("float32", cpu)
+    assert not vgg_in_bfloat16("auto", torch.device("cuda"))

@@ -42,8 +42,8 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--checkpoint-every", type=int, default=1000, metavar="N",
                    help="save OUT/checkpoint.pt every N iterations (0: only on Ctrl-C and at the end)")
     add_run_flags(p, progress="no progress bar (the time estimates are still printed)",
-                  resume="continue from OUT/checkpoint.pt with its settings: --iters may extend the run and "
-                         "--backend change the rasterizer; any other setting given must be the checkpoint's, and "
+                  resume="continue from OUT/checkpoint.pt with its settings: --iters may extend the run, "
+                         "--backend change the rasterizer and --eval-every, --stop-when-flat the scoring; any other setting given must be the checkpoint's, and "
                          "the checkpoint must have been made from this DATA, else exit 2")
     p.set_defaults(func=run)
 

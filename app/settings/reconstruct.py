@@ -42,13 +42,24 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     p.add_argument("--background", choices=BACKGROUNDS, default=None,
                    help="background colour behind the Gaussians (default black)")
     p.add_argument("--seed", type=int, default=None, help="random seed (default 0)")
+    p.add_argument("--eval-every", type=int, default=None, metavar="N",
+                   help="score the test views every N iterations: the progress line shows their PSNR and "
+                        "report.json keeps the curve (test_curve); default: a tenth of the run, 0: never")
+    p.add_argument("--stop-when-flat", type=int, default=None, metavar="N",
+                   help="once densification has stopped, end the run when the test views' PSNR (scored every "
+                        "--eval-every iterations) has not risen by 0.05 dB for N iterations, and keep the model "
+                        "that scored best; chosen on the test views themselves, so the report's test figures are "
+                        "then optimistic (default 0: off)")
 
 
 # the flags that set ReconstructConfig fields (their dests); a resumed run takes its settings from the checkpoint,
 # and of these only RESUME_MAY_CHANGE may differ from them there
 CONFIG_FLAGS = ("preset", "iters", "downscale", "max_side", "max_gaussians", "densify_grad", "prune_screen", "depth",
-                "mono_depth_model", "no_shape", "no_size", "no_depth", "backend", "background", "seed")
-RESUME_MAY_CHANGE = ("iters", "backend")  # a longer run; another rasterizer (the run may go on elsewhere)
+                "mono_depth_model", "no_shape", "no_size", "no_depth", "backend", "background", "seed", "eval_every",
+                "stop_when_flat")
+# a longer run; another rasterizer (the run may go on elsewhere); the test views scored more or less often, and
+# another stopping rule (neither changes what a step does)
+RESUME_MAY_CHANGE = ("iters", "backend", "eval_every", "stop_when_flat")
 
 
 def config_from_args(args: argparse.Namespace, base=None):
@@ -97,12 +108,28 @@ def config_from_args(args: argparse.Namespace, base=None):
         cfg.background = args.background
     if args.seed is not None:
         cfg.seed = args.seed
+    _set_scoring(args, cfg)
     return cfg
 
 
+def _set_scoring(args: argparse.Namespace, cfg) -> None:
+    """--eval-every and --stop-when-flat, checked, into ``cfg``."""
+    from training.core.errors import InputError
+
+    if args.eval_every is not None:
+        if args.eval_every < 0:
+            raise InputError(None, f"--eval-every must be at least 0 (0: never), got {args.eval_every}")
+        cfg.eval_every = args.eval_every
+    if args.stop_when_flat is not None:
+        if args.stop_when_flat < 0:
+            raise InputError(None, f"--stop-when-flat must be at least 0 (0: off), got {args.stop_when_flat}")
+        cfg.stop_when_flat = args.stop_when_flat
+
+
 def resumed_config(args: argparse.Namespace, saved):
-    """The checkpoint's settings ``saved`` with --iters and --backend applied; InputError naming each other flag
-    given whose value is not the checkpoint's (dropping it silently would train with settings nobody asked for)."""
+    """The checkpoint's settings ``saved`` with --iters, --backend, --eval-every and --stop-when-flat applied;
+    InputError naming each other flag given whose value is not the checkpoint's (dropping it silently would train
+    with settings nobody asked for)."""
     from pathlib import Path
 
     from training.core.errors import InputError
@@ -131,6 +158,7 @@ def resumed_config(args: argparse.Namespace, saved):
         saved.iterations = args.iters
     if args.backend is not None:
         saved.backend = args.backend
+    _set_scoring(args, saved)
     return saved
 
 

@@ -47,6 +47,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                    help=f"stroke size: the painting's long side as a multiple of the render's (default "
                         f"{D.STYLE_SCALE:g}; 1 is ARF's and the paper's, where at small renders the painting's "
                         f"features are whole motifs)")
+    p.add_argument("--vgg-precision", choices=D.VGG_PRECISIONS, default=D.VGG_PRECISION,
+                   help=f"VGG's arithmetic: float32, bfloat16, or auto (bfloat16 on a CPU that has it natively, "
+                        f"AVX512-BF16 or AMX; float32 elsewhere and on CUDA) (default {D.VGG_PRECISION}; the "
+                        f"report's vgg_arithmetic says which ran)")
     p.add_argument("--lambda-tv", type=float, default=D.LAMBDA_TV,
                    help=f"total-variation weight on the render (default {D.LAMBDA_TV:g})")
     p.add_argument("--lr", type=float, default=None,
@@ -112,7 +116,7 @@ def config_from_args(args: argparse.Namespace):
         loss=args.loss, tau=args.tau, k=args.k, epsilon=args.epsilon, lambda_guide=args.lambda_guide,
         sinkhorn_iters=args.sinkhorn_iters, lambda_style=args.lambda_style, lambda_content=args.lambda_content,
         content_norm=args.content_norm, content_source=args.content_source, style_scale=args.style_scale,
-        lambda_tv=args.lambda_tv, lr=args.lr, lr_final=args.lr_final, iters_per_view=args.iters_per_view, min_total_iters=args.min_total_iters,
+        lambda_tv=args.lambda_tv, vgg_precision=args.vgg_precision, lr=args.lr, lr_final=args.lr_final, iters_per_view=args.iters_per_view, min_total_iters=args.min_total_iters,
         scene_kind=args.scene_kind, view_order=args.view_order, schedule=args.schedule, seed=args.seed,
         virtual_views=args.virtual_views,
         dc_only=args.dc_only, params=args.params, preset=args.preset or default_preset(args.device, args.backend),

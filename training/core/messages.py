@@ -19,8 +19,8 @@ from typing import Any, Callable, Literal
 
 import numpy as np
 
-EventKind = Literal["step", "structure", "view", "finished", "warning", "info"]
-EVENT_KINDS: tuple[str, ...] = ("step", "structure", "view", "finished", "warning", "info")
+EventKind = Literal["step", "structure", "view", "test", "finished", "warning", "info"]
+EVENT_KINDS: tuple[str, ...] = ("step", "structure", "view", "test", "finished", "warning", "info")
 
 
 @dataclass(frozen=True)
@@ -29,11 +29,13 @@ class TrainerEvent:
 
     kind: "step" (``metrics`` holds the step's scalar metrics), "structure" (the number or geometry of the Gaussians
     changed: densification, pruning, a NaN restore, an edit; ``metrics["num_gaussians"]``), "view" (a stylizer moved
-    to another view of its trajectory; ``metrics["trajectory_position"]``), "finished" (the schedule is done),
-    "warning" (``message`` says what, in one line), "info" (a line for the user that is no warning: what the console
-    prints). ``step`` is the trainer's step count when it happened; ``stage`` names the trainer ("reconstruct",
-    "stylize", or "sfm": structure from motion, whose work is no series of steps, so its "step" events count the
-    units of its current phase, ``metrics["total_iters"]`` of them, and say the phase in ``message``)."""
+    to another view of its trajectory; ``metrics["trajectory_position"]``), "test" (the held-out views were scored
+    during a run, by whoever drives it; ``metrics["test_psnr"]``, ``metrics["test_ssim"]``), "finished" (the
+    schedule is done), "warning" (``message`` says what, in one line), "info" (a line for the user that is no
+    warning: what the console prints). ``step`` is the trainer's step count when it happened; ``stage`` names the
+    trainer ("reconstruct", "stylize", or "sfm": structure from motion, whose work is no series of steps, so its
+    "step" events count the units of its current phase, ``metrics["total_iters"]`` of them, and say the phase in
+    ``message``)."""
 
     kind: EventKind
     stage: str

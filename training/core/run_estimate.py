@@ -125,6 +125,12 @@ class RunEstimate:
                      f"{format_duration(self.said_total)})")
             self.said_total = estimate["total_s"]
 
+    def not_a_step(self) -> None:
+        """What the loop did since the last step (scoring test views) is not a step's time: the next step is timed
+        from now."""
+        if self._t_last is not None:
+            self._t_last = self.clock()
+
     def record(self, actual_s: float | None = None) -> dict[str, Any]:
         """The report's entry: first estimate, revisions, actual seconds of the loop (from its start to the last
         step seen, unless given) and load averages."""

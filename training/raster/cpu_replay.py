@@ -1,16 +1,17 @@
 """Frozen geometry: what the cpu rasterizer can reuse while only the colours change (stylization).
 
 With geometry that needs no gradient, everything but the colours is a function of the geometry and the camera:
-projection, depth order, tile lists, each pixel's final transmittance, and every composited pair's weight a T
-(forward, float32) and its recovered weight (backward, float64). A stylization renders each view of its trajectory
-many times (a new view every step, passes along the trajectory), so ``FrozenCache`` keeps an entry per
-(geometry, camera): the inputs it was computed from (compared bit for bit on every call, so a changed model or
-camera is never served stale results), the screen-space state, and, from the second call on, the composited pairs'
-weights. Then the forward is a weighted sum of the colours over those pairs and the colour backward its transpose:
-the same float operations in the same order as the compositing kernels, so images and gradients are bit-identical
-to a render without the cache (tests/test_raster_cpu.py).
+projection, depth order, tile lists, each pixel's final transmittance, and every composited pair with its alpha
+(the forward's records, cpu_composite). A stylization renders each view of its trajectory many times (a new view
+every step, passes along the trajectory), so ``FrozenCache`` keeps an entry per (geometry, camera): the inputs it
+was computed from (compared bit for bit on every call, so a changed model or camera is never served stale
+results), the screen-space state, and the first forward's records. From then on the forward replays the records
+(``_replay_fwd``: per pair w = alpha T, T *= 1 - alpha, the colour times w summed; no exponential, no test) and the
+colour backward walks the same records as it always does: the same float operations in the same order as the
+compositing kernels, so images and gradients are bit-identical to a render without the cache
+(tests/test_raster_cpu.py).
 
-The weights cost 12 bytes per composited pair and direction; past ``MAX_PAIRS`` an entry keeps none. The entries
+The records cost ``RECORD_BYTES`` per composited pair; past ``MAX_PAIRS`` an entry keeps none. The entries
 together hold at most ``MAX_BYTES`` (what does not fit is computed each time); they share one copy of the geometry.
 """
 
@@ -23,8 +24,8 @@ from numba import njit, prange
 
 from training.raster.cpu_jit import JIT
 
-MAX_PAIRS = 8_000_000  # per direction: at most ~100 MB of forward and ~100 MB of backward weights
-RECORD_BYTES = 12  # a recorded pair, in either direction
+MAX_PAIRS = 16_000_000  # at most ~100 MB of records per entry
+RECORD_BYTES = 6  # a recorded pair: its pixel (uint16) and alpha (float32)
 # All entries together: what is not kept is computed again at each visit (slower, never wrong).
 MAX_BYTES = 1 << 30
 
@@ -45,11 +46,8 @@ class FrozenEntry:
         self.key_arrays = list(geometry) + [np.array(a, copy=True) for a in key_arrays[4:]]
         self.params = params
         self.proj = proj  # (means2d, conics, depths, radii, order, offsets, ids, rec)
-        self.out_t = None  # (H, W) float32 final transmittance, after the first forward
-        self.out_last = None
-        self.tile_pairs = None  # composited pairs per tile, after the first forward
-        self.fwd = None  # (rec_off, rec_p, rec_g, rec_w) once recorded
-        self.bwd = None  # (j_start, j_count, rec_pix, rec_w) once recorded
+        self.out_t = None  # (H, W) float32 final transmittance, with the records
+        self.records = None  # (rec_off, tile_n, pair_n, rec_pix, rec_a), compacted, once recorded
         self.cache: FrozenCache | None = None  # the cache that keeps it (None: used for one call only)
 
     def matches(self, key_arrays, params) -> bool:
@@ -63,24 +61,16 @@ class FrozenEntry:
         return all(_same(a, b) for a, b in zip(key_arrays[:4], self.key_arrays[:4]))
 
     def nbytes(self, with_geometry: bool = True) -> int:
-        arrays = list(self.proj) + [self.out_t] + list(self.fwd or ()) + list(self.bwd or ())
+        arrays = list(self.proj) + [self.out_t] + list(self.records or ())
         if with_geometry:
             arrays += self.key_arrays[:4]
         return sum(a.nbytes for a in arrays if isinstance(a, np.ndarray))
 
-    def record_offsets(self):
-        """Where each tile's records start, and their total, or None before the first forward, for an entry its
-        cache did not keep, or when the records would take too much memory (``MAX_PAIRS``, or more than the cache
-        has room for). The backward touches exactly the pairs the forward composited (same float operations
-        decide), so both directions need this many."""
-        if self.tile_pairs is None or self.cache is None:
-            return None
-        off = np.zeros(self.tile_pairs.size + 1, np.int64)
-        np.cumsum(self.tile_pairs, out=off[1:])
-        total = int(off[-1])
-        if total > MAX_PAIRS or not self.cache.room_for(off.nbytes + total * RECORD_BYTES):
-            return None
-        return off, total
+    def keeps_records(self, pairs: int, list_entries: int) -> bool:
+        """Whether this entry may keep the records of ``pairs`` composited pairs over ``list_entries`` tile-list
+        entries: only an entry its cache keeps, within ``MAX_PAIRS`` and the room the cache has left."""
+        nbytes = pairs * RECORD_BYTES + list_entries * 4
+        return self.cache is not None and pairs <= MAX_PAIRS and self.cache.room_for(nbytes)
 
 
 class FrozenCache:
@@ -159,46 +149,47 @@ class FrozenCache:
 
 
 @njit(parallel=True, **JIT)
-def _replay_fwd(rec_off, rec_p, rec_g, rec_w, feats, width, height, tile_size, tiles_x, out_feat):
-    """out_feat (H, W, C) = sum over the recorded pairs of feats[rank] * weight, per pixel in compositing order
-    (as ``_composite_fwd`` accumulates)."""
+def _replay_fwd(offsets, ids, feats, width, height, tile_size, tiles_x, rec_off, tile_n, pair_n, rec_pix, rec_a,
+                out_feat):
+    """out_feat (H, W, C) from the forward's records (cpu_composite._composite_fwd): per pixel, in compositing
+    order, w = alpha T and T *= 1 - alpha, the features times w summed, as the forward accumulates them."""
     n_ch = feats.shape[1]
-    for t in prange(rec_off.shape[0] - 1):
+    for t in prange(offsets.shape[0] - 1):
         ty, tx = t // tiles_x, t % tiles_x
         x0, y0 = tx * tile_size, ty * tile_size
         x1, y1 = min(x0 + tile_size, width), min(y0 + tile_size, height)
         tw = x1 - x0
-        acc = np.zeros((tw * (y1 - y0), n_ch), np.float32)
-        for k in range(rec_off[t], rec_off[t + 1]):
-            p = rec_p[k]
-            g = rec_g[k]
-            w = rec_w[k]
-            for c in range(n_ch):
-                acc[p, c] += feats[g, c] * w
+        n_pix = tw * (y1 - y0)
+        T = np.ones(n_pix, np.float32)
+        acc = np.zeros((n_pix, 4), np.float32)
+        k = rec_off[t]
+        k_end = rec_off[t] + tile_n[t]
+        j = offsets[t]
+        while k < k_end:
+            n = pair_n[j]
+            if n == 0:
+                j += 1
+                continue
+            g = ids[j]
+            f0 = feats[g, 0]
+            f1 = feats[g, 1] if n_ch > 1 else np.float32(0.0)
+            f2 = feats[g, 2] if n_ch > 2 else np.float32(0.0)
+            f3 = feats[g, 3] if n_ch > 3 else np.float32(0.0)
+            for i in range(k, k + n):
+                code = np.int64(rec_pix[i])
+                p = (code >> 8) * tw + (code & 255)
+                alpha = abs(rec_a[i])
+                tp = T[p]
+                w = alpha * tp
+                acc[p, 0] += f0 * w
+                acc[p, 1] += f1 * w
+                acc[p, 2] += f2 * w
+                acc[p, 3] += f3 * w
+                T[p] = tp * (np.float32(1.0) - alpha)
+            k += n
+            j += 1
         for py in range(y0, y1):
             for px in range(x0, x1):
                 p = (py - y0) * tw + (px - x0)
                 for c in range(n_ch):
                     out_feat[py, px, c] = acc[p, c]
-
-
-@njit(parallel=True, **JIT)
-def _replay_bwd_rgb(j_start, j_count, rec_pix, rec_w, g_feat, pair_rgb):
-    """pair_rgb[j] (zeroed) = sum over entry j's recorded pixels of weight * dL/d(rgb), in the recorded order
-    (as ``_composite_bwd_rgb`` accumulates); g_feat (H * W, C >= 3)."""
-    for j in prange(j_start.shape[0]):
-        n = j_count[j]
-        if n == 0:
-            continue
-        vr = 0.0
-        vg = 0.0
-        vb = 0.0
-        for k in range(j_start[j], j_start[j] + n):
-            p = rec_pix[k]
-            w = rec_w[k]
-            vr += w * np.float64(g_feat[p, 0])
-            vg += w * np.float64(g_feat[p, 1])
-            vb += w * np.float64(g_feat[p, 2])
-        pair_rgb[j, 0] = vr
-        pair_rgb[j, 1] = vg
-        pair_rgb[j, 2] = vb

@@ -112,7 +112,8 @@ def rasterize(
 
     Returns image (H, W, C) float32 with C = 3 (RGB), 1 (D, ED) or 4 (RGB+D, RGB+ED; depth last), where
     D = sum d_i a_i T_i and ED = D / alpha; alpha (H, W, 1); info with "means2d" (N, 2) (after backward its
-    ``.grad`` is dL/d(pixel-space means)), "radii" (N,) int32 (0 = culled), "depths" (N,) camera z, "backend".
+    ``.grad`` is dL/d(pixel-space means)), "radii" (N,) int32 (0 = culled), "depths" (N,) camera z, "backend",
+    "timings" (the cpu backend's seconds per stage, the backward's added once it ran; empty for the others).
     All tensor inputs are differentiable.
     """
     if render_mode not in RENDER_MODES:
@@ -149,10 +150,11 @@ def rasterize(
     K = K.to(device=means.device, dtype=dtype)
     args = (means, quats, scales, opacities, colors, viewmat, K, width, height, sh_degree, use_rgb, use_depth,
             float(near_plane), float(far_plane), float(eps2d), tile_size)
+    timings: dict[str, float] = {}
     if chosen == "cpu":
         from training.raster.cpu import render_features_cpu
 
-        feats, trans, means2d, radii, depths = render_features_cpu(*args)
+        feats, trans, means2d, radii, depths, timings = render_features_cpu(*args)
     elif chosen == "cuda":
         from training.raster.cuda import render_features_cuda
 
@@ -185,5 +187,5 @@ def rasterize(
             zero = sum((t * 0).sum() for t in inputs if t.requires_grad)
             image, alpha = image + zero, alpha + zero
     info = {"means2d": means2d, "radii": radii, "depths": depths, "backend": chosen,
-            "width": width, "height": height, "tile_size": tile_size}
+            "width": width, "height": height, "tile_size": tile_size, "timings": timings}
     return image, alpha, info

@@ -77,6 +77,11 @@ class ReconstructConfig:
     random_init_points: int = 50_000  # when the scene has no SfM points
     snapshot_every: int = 100
     seed: int = 0
+    # the run's held-out scoring (training/reconstruct/pipeline.py; the trainer's step never reads these): the test
+    # views scored every eval_every iterations (None: a tenth of the run; 0: never), and with stop_when_flat N > 0
+    # the run ended once densification has stopped and their PSNR has not risen by 0.05 dB for N iterations
+    eval_every: int | None = None
+    stop_when_flat: int = 0
 
     @classmethod
     def from_preset(cls, name: str, **overrides) -> "ReconstructConfig":
@@ -141,6 +146,8 @@ class ReconstructConfig:
                      "lambda_depth_end")],
                   ("random_init_points", self.random_init_points >= 1, "at least 1"),
                   ("snapshot_every", self.snapshot_every >= 0, "at least 0"),
+                  ("eval_every", self.eval_every is None or self.eval_every >= 0, "at least 0 (0: never; or None)"),
+                  ("stop_when_flat", self.stop_when_flat >= 0, "at least 0 (0: off)"),
                   ("densify.interval", d.interval >= 1, "at least 1"),
                   ("densify.grad_threshold", d.grad_threshold > 0, "positive"),
                   ("densify.prune_screen", d.prune_screen >= 0, "at least 0 (0: off)"),

@@ -16,6 +16,7 @@ from typing import Any, Callable
 
 from training.core.errors import InputError
 from training.reconstruct.config import ReconstructConfig
+from training.reconstruct.early_stop import FlatWatch
 
 
 class Stopped(KeyboardInterrupt):
@@ -131,17 +132,40 @@ def reconstruct_to_folder(data: str | Path, out: str | Path, config: Reconstruct
     trainer.add_listener(estimate)
     if listener is not None:
         trainer.add_listener(listener)
+    eval_every = cfg.eval_every if cfg.eval_every is not None else max(1, cfg.iterations // 10)
+    if not scene.test_indices:
+        eval_every = 0
+    curve = list(report_extra.get("test_curve", []))  # a resumed run's points so far
+    eval_seconds = float(report_extra.get("test_curve_seconds", 0.0))
+    flat = FlatWatch(cfg.stop_when_flat, cfg.densify.stop) if cfg.stop_when_flat else None
+    if flat is not None and not eval_every:
+        warn("--stop-when-flat needs test views scored during the run (--eval-every, and a scene with test "
+             "views): it is off")
+        flat = None
     t_start = time.perf_counter()
     estimate.begin(trainer.step_count)
     try:
         while not trainer.done:
             trainer.step()
+            if eval_every and (trainer.step_count % eval_every == 0 or trainer.done):
+                t_eval = time.perf_counter()
+                point = trainer.evaluate(scene.test_indices)
+                curve.append({"iteration": trainer.step_count, "psnr": point["psnr"], "ssim": point["ssim"]})
+                eval_seconds += time.perf_counter() - t_eval
+                report_extra["test_curve"], report_extra["test_curve_seconds"] = curve, eval_seconds
+                trainer.events.emit("test", trainer.step_count, {"test_psnr": point["psnr"],
+                                                                 "test_ssim": point["ssim"]})
+                estimate.not_a_step()
+                if flat is not None and flat.see(trainer.step_count, point["psnr"], trainer):
+                    break
             if checkpoint_every > 0 and trainer.step_count % checkpoint_every == 0:
                 checkpoint()
     except KeyboardInterrupt:
         checkpoint()
         raise Stopped(trainer.step_count, ckpt_path) from None
     seconds = elapsed + (time.perf_counter() - t_start)
+    if flat is not None:
+        report_extra["early_stop"] = flat.finish(trainer, curve, say=log)
     checkpoint()
     timing = estimate.record()
     if timing["first_estimate_s"] is not None:

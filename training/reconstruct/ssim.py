@@ -1,7 +1,9 @@
 """Structural similarity (SSIM) as 3DGS computes it: an 11x11 Gaussian window (sigma 1.5), zero padding, mean map.
 
 Differentiable in both arguments. The 2D window is separable, so it is applied as two 1D convolutions (the same
-numbers as 3DGS's outer-product window, in fewer operations).
+numbers as 3DGS's outer-product window, in fewer operations). ``ssim`` of a CPU float32 (H, W, C) image against one
+that needs no gradient (a training step's render against its photo) runs on numba kernels (ssim_cpu.py, several
+times faster); everything else on torch's convolutions.
 """
 
 from __future__ import annotations
@@ -54,4 +56,9 @@ def ssim_map(a: torch.Tensor, b: torch.Tensor, window_size: int = 11, sigma: flo
 
 def ssim(a: torch.Tensor, b: torch.Tensor, window_size: int = 11, sigma: float = 1.5) -> torch.Tensor:
     """Mean SSIM (scalar tensor) of two images in [0, 1], (H, W, C) or (B, C, H, W)."""
+    if (a.dim() == 3 and a.shape == b.shape and a.device.type == "cpu" and b.device.type == "cpu"
+            and a.dtype == torch.float32 and b.dtype == torch.float32 and not b.requires_grad and window_size % 2):
+        from training.reconstruct.ssim_cpu import ssim_cpu
+
+        return ssim_cpu(a, b, gaussian_window_1d(window_size, sigma).numpy())
     return ssim_map(a, b, window_size, sigma).mean()

@@ -95,12 +95,13 @@ def _time_steps(trainer, model, views, degree: int) -> float:
     from training.reconstruct.regularizers import shape_loss, size_loss
     from training.reconstruct.ssim import ssim
 
+    from training.model.gaussians import Gaussians
+    from training.reconstruct.trainer import FUSED_ADAM, all_finite
+
     cfg = trainer.config
     leaves = {k: v.detach().clone().requires_grad_(True) for k, v in model.parameters().items()}
-    from training.model.gaussians import Gaussians
-
     live = Gaussians(**leaves, sh_degree=model.sh_degree)
-    opt = torch.optim.Adam(list(leaves.values()), lr=1e-6, eps=1e-15)
+    opt = torch.optim.Adam(list(leaves.values()), lr=1e-6, eps=1e-15, fused=FUSED_ADAM)
     total = 0.0
     for i, view in enumerate(views):
         t = time.perf_counter()
@@ -114,8 +115,8 @@ def _time_steps(trainer, model, views, degree: int) -> float:
         loss.backward()
         opt.step()
         opt.zero_grad(set_to_none=True)
-        all(bool(torch.isfinite(p).all()) for p in leaves.values())  # the trainer checks twice a step
-        all(bool(torch.isfinite(p).all()) for p in leaves.values())
+        all_finite(leaves.values())  # the trainer checks twice a step
+        all_finite(leaves.values())
         if i:
             total += time.perf_counter() - t
     return total / max(1, len(views) - 1)

@@ -11,7 +11,7 @@ import numpy as np
 
 from training.scene.scene import Camera
 from training.stylize import defaults as D
-from training.stylize.defaults import (CONTENT_NORMS, CONTENT_SOURCES, MAX_STYLE_SCALE, FORWARD_ITERS_PER_VIEW, FORWARD_MIN_TOTAL, LOSSES, ORBIT_ITERS_PER_VIEW,
+from training.stylize.defaults import (CONTENT_NORMS, VGG_PRECISIONS, CONTENT_SOURCES, MAX_STYLE_SCALE, FORWARD_ITERS_PER_VIEW, FORWARD_MIN_TOTAL, LOSSES, ORBIT_ITERS_PER_VIEW,
                                        ORBIT_ITERS_PER_VIEW_MANY, ORBIT_MANY_VIEWS, PAPER_MAX_SIDE, PARAMS, PRESETS,
                                        QUICK_ITER_FRACTION, QUICK_MAX_SIDE, SCENE_KINDS, SCHEDULES,
                                        STANDARD_MAX_SIDE, VIEW_ORDERS)
@@ -23,7 +23,7 @@ DEFAULT_LR = D.LR
 # device, which parameters the optimiser holds): update_config refuses them rather than ignore them, and a
 # checkpoint's fingerprint holds them (checkpoint.py).
 FIXED_AT_START = ("view_order", "virtual_views", "preset", "device", "color_transfer", "background", "scene_kind",
-                  "max_side", "seed", "params", "schedule", "content_source")
+                  "max_side", "seed", "params", "schedule", "content_source", "vgg_precision")
 
 
 # The useful span of each numeric setting (low, high, logarithmic): what a live control offers. ``validate`` is
@@ -36,7 +36,7 @@ RANGES: dict[str, tuple[float, float, bool]] = {
 
 
 # the fields by kind, each checked by ``validate`` (a None in OPTIONAL means "from the preset / the paper")
-WHOLE_NUMBERS = ("k", "sinkhorn_iters", "iters_per_view", "min_total_iters", "seed", "virtual_views", "max_side")
+WHOLE_NUMBERS = ("k", "balance_every", "sinkhorn_iters", "iters_per_view", "min_total_iters", "seed", "virtual_views", "max_side")
 NUMBERS = ("tau", "epsilon", "lambda_guide", "lambda_style", "lambda_content", "lr", "style_scale", "lambda_tv",
            "lr_final")
 FLAGS = ("dc_only", "color_transfer", "measure_balance")
@@ -61,7 +61,9 @@ class StylizeConfig:
     lambda_tv: float = D.LAMBDA_TV  # total variation of the render
     lr: float | None = None  # Adam learning rate of sh0 (shN: lr / 20); None: DEFAULT_LR
     lr_final: float = D.LR_FINAL  # the rate decays exponentially to lr * lr_final at the last iteration
-    measure_balance: bool = True  # the style and content gradients' norms on the render, every step
+    measure_balance: bool = True  # the style and content gradients' norms on the render (the balance) ...
+    vgg_precision: str = D.VGG_PRECISION  # float32 | bfloat16 | auto (bfloat16 on a CPU that has it natively)
+    balance_every: int = D.BALANCE_EVERY  # ... measured every this many steps (each costs a VGG backward pass)
     iters_per_view: int | None = None
     min_total_iters: int | None = None
     scene_kind: str = "auto"  # auto | forward | 360
@@ -108,12 +110,15 @@ class StylizeConfig:
         if self.content_source not in CONTENT_SOURCES:
             raise ValueError(f"content_source must be one of {', '.join(CONTENT_SOURCES)}, got "
                              f"{self.content_source!r}")
+        if self.vgg_precision not in VGG_PRECISIONS:
+            raise ValueError(f"vgg_precision must be one of {', '.join(VGG_PRECISIONS)}, got {self.vgg_precision!r}")
         if self.content_norm not in CONTENT_NORMS:
             raise ValueError(f"content_norm must be one of {', '.join(CONTENT_NORMS)}, got {self.content_norm!r}")
         if self.params not in PARAMS:  # worded "<field> ..." so the CLI can name the flag
             raise ValueError(f"params must be one of {', '.join(PARAMS)}, got {self.params!r}")
         checks = [("k", self.k >= 1, "at least 1"), ("epsilon", self.epsilon > 0, "positive"),
                   ("tau", self.tau > 0, "positive"), ("sinkhorn_iters", self.sinkhorn_iters >= 1, "at least 1"),
+                  ("balance_every", self.balance_every >= 1, "at least 1"),
                   ("lambda_content", self.lambda_content >= 0, "at least 0"),
                   ("style_scale", 0 < self.style_scale <= MAX_STYLE_SCALE, f"in (0, {MAX_STYLE_SCALE:g}]"),
                   ("lambda_tv", self.lambda_tv >= 0, "at least 0"),

@@ -17,18 +17,33 @@ from training.stylize.style_image import halve, painting_side, style_for_render
 CONTENT_CACHE_BYTES = 1 << 30
 
 
-class FeatureCache:
-    """``vgg`` (an (1, 3, H, W) -> (1, 768, h, w) module on ``device``) over the painting ``style_image`` (H, W, 3)."""
+def vgg_in_bfloat16(precision: str, device: torch.device) -> bool:
+    """Whether VGG runs in bfloat16 for ``precision`` (StylizeConfig.vgg_precision): "auto" picks it on a CPU that
+    multiplies bfloat16 natively (ccft.bf16_matmul_is_faster), where VGG's forward and backward take about 0.6x the
+    time of float32's at the quick preset (docs/performance.md)."""
+    if precision == "auto":
+        from training.stylize.ccft import bf16_matmul_is_faster
 
-    def __init__(self, vgg: torch.nn.Module, style_image: np.ndarray, device: torch.device):
-        self.vgg, self.style_image, self.device = vgg, style_image, device
+        return device.type == "cpu" and bf16_matmul_is_faster()
+    return precision == "bfloat16"
+
+
+class FeatureCache:
+    """``vgg`` (an (1, 3, H, W) -> (1, 768, h, w) module on ``device``) over the painting ``style_image`` (H, W, 3).
+    ``bfloat16``: VGG's convolutions (and their backward) run in bfloat16, the features come out in float32."""
+
+    def __init__(self, vgg: torch.nn.Module, style_image: np.ndarray, device: torch.device, bfloat16: bool = False):
+        self.vgg, self.style_image, self.device, self.bfloat16 = vgg, style_image, device, bfloat16
         self.style: dict[int, torch.Tensor] = {}  # the painting's long side -> features
         self.content: OrderedDict[int, torch.Tensor] = OrderedDict()  # trajectory position -> features
 
     def features(self, image_hwc: torch.Tensor) -> torch.Tensor:
         """(H, W, 3) image -> (1, 768, h, w) VGG features of the image halved (ARF)."""
-        x = image_hwc.permute(2, 0, 1)[None].float()
-        return self.vgg(halve(x))
+        return self._vgg(halve(image_hwc.permute(2, 0, 1)[None].float()))
+
+    def _vgg(self, x: torch.Tensor) -> torch.Tensor:
+        with torch.autocast(self.device.type, dtype=torch.bfloat16, enabled=self.bfloat16):
+            return self.vgg(x).float()
 
     def style_features(self, width: int, height: int, style_scale: float) -> torch.Tensor:
         """(1, 768, h, w) features of the painting resized so its long side is ``style_scale`` times a
@@ -36,7 +51,7 @@ class FeatureCache:
         side = painting_side(max(width, height), style_scale)
         if side not in self.style:
             with torch.no_grad():
-                self.style[side] = self.vgg(halve(style_for_render(self.style_image, side).to(self.device)))
+                self.style[side] = self._vgg(halve(style_for_render(self.style_image, side).to(self.device)))
         return self.style[side]
 
     def content_features(self, position: int, content_image: Callable[[], torch.Tensor]) -> torch.Tensor:

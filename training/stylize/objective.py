@@ -19,8 +19,8 @@ The total-variation term is the mean squared difference of neighbouring pixels o
 ARF's grids carry; 0 leaves it out.
 
 Gradient balance: with ``measure_balance`` the style and content terms' gradients on the render are taken apart
-(one more VGG backward pass: about a tenth of a quick step, docs/stylization.md) and their norms reported, so that a
-user sees which term steers the colours.
+every ``balance_every`` steps (one more VGG backward pass on those steps) and their norms reported, so that a user
+sees which term steers the colours.
 """
 
 from __future__ import annotations
@@ -66,19 +66,22 @@ class Gradients:
 
 def render_gradients(render: torch.Tensor, terms: dict[str, torch.Tensor], measure_balance: bool) -> Gradients:
     """d(sum of ``terms``)/d ``render`` (a leaf the terms were computed from), with the terms' norms taken apart
-    when ``measure_balance``. ``terms``: "style", "content" and optionally "tv", each already weighted."""
+    when ``measure_balance``. ``terms``: "style", "content" and optionally "tv", each already weighted.
+
+    The total is the gradient of the sum whether or not the balance is measured, so measuring it (or how often)
+    cannot change a run: the content's and the total variation's gradients are taken on their own and the style's
+    is what remains of the total (one more VGG backward pass, not two)."""
     loss = sum(terms.values())
     if not measure_balance:
         (total,) = torch.autograd.grad(loss, render)
         return Gradients(total)
-    norms: dict[str, float] = {}
-    total = torch.zeros_like(render)
-    names = list(terms)
-    for i, name in enumerate(names):
-        if not terms[name].requires_grad:
-            norms[name] = 0.0
-            continue
-        (g,) = torch.autograd.grad(terms[name], render, retain_graph=i < len(names) - 1)
-        norms[name] = float(g.norm())
-        total += g
-    return Gradients(total, norms.get("style"), norms.get("content"), norms.get("tv"))
+    parts: dict[str, torch.Tensor] = {}
+    for name in ("content", "tv"):
+        if name in terms and terms[name].requires_grad:
+            (parts[name],) = torch.autograd.grad(terms[name], render, retain_graph=True)
+    (total,) = torch.autograd.grad(loss, render)
+    style = total.clone()
+    for g in parts.values():
+        style -= g
+    norm = {name: float(g.norm()) for name, g in parts.items()}
+    return Gradients(total, float(style.norm()), norm.get("content", 0.0), norm.get("tv", 0.0 if "tv" in terms else None))

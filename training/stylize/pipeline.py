@@ -111,7 +111,8 @@ def stylize_to_folder(model: Path, data: Path, style: Path, out: Path, config: S
               f"trajectory, {stylizer.total_iters} iterations ({config.schedule}: {passes} "
               f"pass{'es' if passes != 1 else ''} along the trajectory) at "
               f"{stylizer.cameras[0].width}x{stylizer.cameras[0].height}; VGG weights: "
-              f"{getattr(stylizer.vgg, 'weights_source', 'given')}{where}")
+              f"{getattr(stylizer.vgg, 'weights_source', 'given')} in "
+              f"{'bfloat16' if stylizer.feature_cache.bfloat16 else 'float32'}{where}")
     t0 = time.perf_counter()
 
     def loop_seconds() -> float:
@@ -188,6 +189,7 @@ def stylize_to_folder(model: Path, data: Path, style: Path, out: Path, config: S
         "num_gaussians": len(stylizer.gaussians),
         "sh_degree": stylizer.gaussians.sh_degree,
         "vgg_weights": str(getattr(stylizer.vgg, "weights_source", "given")),
+        "vgg_arithmetic": "bfloat16" if stylizer.feature_cache.bfloat16 else "float32",  # vgg_precision resolved
         "losses": {"first": first, "last": last, "history": stylizer.history},
         "style_distance": {
             "metric": "Gram distance of VGG relu3 features to the painting, mean over up to 8 evenly spaced views "

@@ -17,11 +17,13 @@ def stylize_status(stylizer) -> TrainerStatus:
     # the trajectory is fixed when the run starts: the stops are made once
     stops = stylizer.status().trajectory or tuple(TrajectoryStop(item.source_index, item.camera.center,
                                                                  item.is_virtual) for item in stylizer.trajectory)
-    balance = stats.get("content_to_style")
+    # the last measured balance (measured every balance_every steps)
+    measured = (h for h in reversed(stylizer.history) if h["grad_style"] and h["grad_content"] is not None)
+    balance = next(measured, None) if stylizer.config.measure_balance else None
     return TrainerStatus(
         "stylize", stylizer.iteration, stylizer.total_iters, str(stylizer.device), len(stylizer.gaussians),
         stylizer.structure_version, stylizer.config, editable=True, losses=scalars(stats, LOSSES),
         trajectory=stops, trajectory_position=stylizer.trajectory_position,
         pass_progress=stylizer.pass_progress(), capacity=stylizer.capacity,
-        utilisation=scalars(stats, UTILISATION), gradient_balance=None if balance is None else float(balance),
+        utilisation=scalars(stats, UTILISATION), gradient_balance=None if balance is None else balance["grad_content"] / balance["grad_style"],
         colour_only=stylizer.config.params == "colour")

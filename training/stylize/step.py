@@ -84,7 +84,7 @@ def gradient_step(st: Stylizer, timer: StepTimer) -> tuple[dict[str, Any], np.nd
             timer.timings[key[:-2]] = float(value)
 
     timer.start()
-    grads = render_gradients(image, terms, cfg.measure_balance)
+    grads = render_gradients(image, terms, cfg.measure_balance and st.iteration % cfg.balance_every == 0)
     timer.stop("vgg_backward")
     timer.start()
     st.optimizer.zero_grad(set_to_none=True)

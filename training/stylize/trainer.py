@@ -33,7 +33,7 @@ from training.scene.scene import Camera, Scene, over_background
 from training.stylize.color_transfer import ColorTransform
 from training.stylize.config import (DEFAULT_LAMBDA_STYLE, DEFAULT_LR, FIXED_AT_START,  # noqa: F401  (re-exported)
                                      StylizeConfig, paper_schedule, render_camera, schedule)
-from training.stylize.feature_cache import FeatureCache
+from training.stylize.feature_cache import FeatureCache, vgg_in_bfloat16
 from training.stylize.optimizer import (colour_learning_rate, geometry_learning_rates, make_optimizer,
                                         set_colour_learning_rate)
 from training.stylize.plan_readouts import StepAgreement
@@ -79,7 +79,8 @@ class Stylizer(LiveTrainer):
 
             vgg = load_vgg16_features(vgg_weights)
         self.vgg = vgg.to(self.device)
-        self.feature_cache = FeatureCache(self.vgg, self.style_image, self.device)
+        self.feature_cache = FeatureCache(self.vgg, self.style_image, self.device,
+                                          vgg_in_bfloat16(self.config.vgg_precision, self.device))
 
         mask = as_mask(mask, len(gaussians), model_name)
         if mask is not None and not bool(mask.any()):

@@ -164,9 +164,10 @@ def loss_curves(session, ui) -> None:
 def balance_curve(steps: np.ndarray, history: list[dict]) -> None:
     """The content term's gradient on the render over the style term's, step by step, with 1 (balanced) marked."""
     ratio = np.array([h.get("content_to_style", np.nan) for h in history], dtype=np.float64)
-    ratio = np.where(ratio > 0, ratio, np.nan)
-    if not np.isfinite(ratio).any():
+    measured = ratio > 0  # every balance_every-th step is measured: the curve joins those
+    if not measured.any():
         return
+    steps, ratio = steps[measured], ratio[measured]
     if implot.begin_plot("gradient balance", imgui.ImVec2(-1, BALANCE_PLOT_H)):
         fit = implot.AxisFlags_.auto_fit.value
         implot.setup_axes("step", "content / style", fit, fit)
