@@ -144,7 +144,7 @@ def test_geometry_gradients_reach_the_leaves_after_colour_only_renders(tiny, vgg
         from training.raster.cpu import FROZEN
 
         entry = FROZEN.newest
-        assert entry is not None and entry.fwd is not None  # the colour run's geometry and view are cached
+        assert entry is not None and entry.records is not None  # the colour run's geometry, view and pairs are cached
         assert entry.params[:2] == (cam.width, cam.height)
         assert all(np.array_equal(a, b.detach().numpy()) for a, b in zip(
             entry.key_arrays, (s.gaussians.means, s.gaussians.quats, s.gaussians.scales, s.gaussians.opacities)))

@@ -30,7 +30,7 @@ def test_live_stylization_tau_slider_view_order_and_pause(demo_scene, tmp_path):
     scene_dir, style, model = demo_scene
     found = run_gui(PRELUDE + f"""
 app = ViewerApp(Paths(model={str(model)!r}, data={str(scene_dir)!r}, style={str(style)!r}, out=str(OUT / "out")),
-                start="stylize", stylize_overrides={{"max_side": 64, "iters_per_view": 30}})
+                start="stylize", stylize_overrides={{"max_side": 64, "iters_per_view": 300}})  # never done before the pause
 
 def test(ctx):
     wait(ctx, lambda: app.session.status().state == "running" and app.session.status().step >= 2, 180,
@@ -272,7 +272,7 @@ from app.viewer.live.runs import set_style_region
 from app.viewer.panels import export_panel
 from app.viewer.panels.style_panel import set_stylize
 app = ViewerApp(Paths(model={str(model)!r}, data={str(scene_dir)!r}, style={str(style)!r}, out=str(OUT / "out")),
-                start="stylize", stylize_overrides={{"max_side": 48, "iters_per_view": 200}})
+                start="stylize", stylize_overrides={{"max_side": 48, "iters_per_view": 2000}})  # never done before the pause
 rng = random.Random(7)
 
 def test(ctx):
