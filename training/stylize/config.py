@@ -11,7 +11,8 @@ import numpy as np
 
 from training.scene.scene import Camera
 from training.stylize import defaults as D
-from training.stylize.defaults import (CONTENT_NORMS, VGG_PRECISIONS, CONTENT_SOURCES, MAX_STYLE_SCALE, FORWARD_ITERS_PER_VIEW, FORWARD_MIN_TOTAL, LOSSES, ORBIT_ITERS_PER_VIEW,
+from training.stylize.defaults import (CONTENT_NORMS, CONTENT_SOURCES, MAX_STYLE_SCALE, FORWARD_ITERS_PER_VIEW,
+                                       FORWARD_MIN_TOTAL, LOSSES, ORBIT_ITERS_PER_VIEW, VGG_PRECISIONS,
                                        ORBIT_ITERS_PER_VIEW_MANY, ORBIT_MANY_VIEWS, PAPER_MAX_SIDE, PARAMS, PRESETS,
                                        QUICK_ITER_FRACTION, QUICK_MAX_SIDE, SCENE_KINDS, SCHEDULES,
                                        STANDARD_MAX_SIDE, VIEW_ORDERS)
@@ -36,7 +37,8 @@ RANGES: dict[str, tuple[float, float, bool]] = {
 
 
 # the fields by kind, each checked by ``validate`` (a None in OPTIONAL means "from the preset / the paper")
-WHOLE_NUMBERS = ("k", "balance_every", "sinkhorn_iters", "iters_per_view", "min_total_iters", "seed", "virtual_views", "max_side")
+WHOLE_NUMBERS = ("k", "balance_every", "sinkhorn_iters", "iters_per_view", "min_total_iters", "seed", "virtual_views",
+                 "max_side")
 NUMBERS = ("tau", "epsilon", "lambda_guide", "lambda_style", "lambda_content", "lr", "style_scale", "lambda_tv",
            "lr_final")
 FLAGS = ("dc_only", "color_transfer", "measure_balance")

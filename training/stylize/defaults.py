@@ -43,7 +43,8 @@ LAMBDA_TV = 40.0
 # The balance moves slowly (a curve over hundreds of steps); measured every step it cost a third of the backward.
 BALANCE_EVERY = 10
 VGG_PRECISIONS = ("float32", "bfloat16", "auto")
-# bfloat16 where the CPU has it: VGG's forward and backward 0.7x float32's time; on the fox at the defaults the
+# paper.tex 231 (a pre-trained VGG-16 as the feature extractor): the same network and weights in either; bfloat16
+# where the CPU has it: VGG's forward and backward 0.7x float32's time; on the fox at the defaults the
 # structure distance 0.0794 -> 0.0795, SWD ratio 0.799 -> 0.797, short consistency 0.0362 -> 0.0362
 # (docs/performance.md, "The stylization step")
 VGG_PRECISION = "auto"

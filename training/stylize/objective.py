@@ -80,8 +80,6 @@ def render_gradients(render: torch.Tensor, terms: dict[str, torch.Tensor], measu
         if name in terms and terms[name].requires_grad:
             (parts[name],) = torch.autograd.grad(terms[name], render, retain_graph=True)
     (total,) = torch.autograd.grad(loss, render)
-    style = total.clone()
-    for g in parts.values():
-        style -= g
     norm = {name: float(g.norm()) for name, g in parts.items()}
-    return Gradients(total, float(style.norm()), norm.get("content", 0.0), norm.get("tv", 0.0 if "tv" in terms else None))
+    return Gradients(total, float((total - sum(parts.values())).norm()), norm.get("content", 0.0),
+                     norm.get("tv", 0.0) if "tv" in terms else None)
