@@ -76,8 +76,13 @@ BF16_REL_ERROR = 0.0065
 @functools.lru_cache(maxsize=None)
 def bf16_matmul_is_faster() -> bool:
     """Whether this CPU multiplies bfloat16 matrices at least 1.5x faster than float32 (AVX512-BF16 or AMX: 3.7x on
-    the project's 2-core machines; elsewhere bfloat16 is emulated and slower): measured once, on a small product."""
-    a, b = torch.rand(256, 768), torch.rand(768, 2048)
+    such 2-core machines). Where Linux says the CPU has neither, no: torch then emulates bfloat16, about 70x slower
+    than float32 on an AMD EPYC here (2 s for one 256x768x2048 product), so even timing it would cost seconds.
+    Otherwise measured once, on a small product."""
+    flags = _cpu_flags()
+    if flags is not None and not ({"avx512_bf16", "amx_bf16"} & flags):
+        return False
+    a, b = torch.rand(128, 384), torch.rand(384, 1024)
     ab, bb = a.bfloat16(), b.bfloat16()
 
     def best(x, y) -> float:
@@ -89,6 +94,18 @@ def bf16_matmul_is_faster() -> bool:
         return min(times[1:])
 
     return best(ab, bb) * 1.5 < best(a, b)
+
+
+def _cpu_flags() -> set[str] | None:
+    """The CPU's feature flags as Linux lists them, or None where it does not (another system)."""
+    try:
+        with open("/proc/cpuinfo") as f:
+            for line in f:
+                if line.startswith("flags"):
+                    return set(line.split(":", 1)[1].split())
+    except OSError:
+        return None
+    return None
 
 
 @torch.no_grad()
