@@ -16,6 +16,7 @@ from typing import Callable, Iterator
 
 import numpy as np
 
+from training.core import stop
 from training.core.atomic_write import atomic_path
 from training.core.messages import check_cancel
 
@@ -40,8 +41,12 @@ def frame_writer(out: Path, width: int, height: int, fps: float) -> Iterator[Cal
                                               pix_fmt_out="yuv420p", quality=MP4_QUALITY, macro_block_size=2,
                                               ffmpeg_log_level="error")
             gen.send(None)
+            def send(frame: np.ndarray) -> None:
+                stop.check()
+                gen.send(np.ascontiguousarray(frame, dtype=np.uint8))
+
             try:
-                yield lambda frame: gen.send(np.ascontiguousarray(frame, dtype=np.uint8))
+                yield send
             except BaseException:
                 with contextlib.suppress(Exception):  # ffmpeg may be gone already (Ctrl-C reaches it too)
                     gen.close()
@@ -54,6 +59,7 @@ def frame_writer(out: Path, width: int, height: int, fps: float) -> Iterator[Cal
     written = []
 
     def write(frame: np.ndarray) -> None:
+        stop.check()
         path = out / FRAME_PATTERN.format(len(written))
         write_image(path, frame.astype(np.float32) / 255.0)
         written.append(path.name)

@@ -198,7 +198,7 @@ def test_interrupt_mid_stylization_then_resume_matches_an_uninterrupted_run(tmp_
 
     monkeypatch.setattr(Stylizer, "step", step)
     assert main(stylize_args(inputs, out, "--no-metrics")) == 130
-    assert "stopped at iteration 4" in capsys.readouterr().out
+    assert "splatstyler: stopped by SIGINT at iteration 4; the model so far is in" in capsys.readouterr().err
     assert len(read_ply(out / "point_cloud.ply")) == len(read_ply(inputs["model"]))
     assert (out / "stylize_checkpoint.pt").is_file() and not (out / "report.json").exists()
     monkeypatch.setattr(Stylizer, "step", real_step)

@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import json
 import os
+import signal
 import subprocess
 import sys
 import time
@@ -121,7 +122,8 @@ Path(os.environ["RESULT"]).write_text(json.dumps(found))
 
 
 KEYS_APP = """
-import json, os, sys
+import faulthandler, json, os, sys
+faulthandler.enable()
 from pathlib import Path
 from app.viewer.app import Paths, ViewerApp, run
 
@@ -137,6 +139,7 @@ def frame():
 
 app.gui = frame
 print("stopped by", run(app), "closed", app.closed, flush=True)
+os._exit(0)  # as `splatstyler view` ends (app/cli.py entry): no interpreter teardown after the window's
 """
 
 
@@ -210,15 +213,25 @@ def test_x11_full_hd_keys_overlay_lines_up_and_ctrl_q_closes_as_the_close_button
         time.sleep(0.3)
         xdotool("key", "h")
         until(lambda: state()["help"], 30, "the keys overlay")
-        time.sleep(1.0)  # its first frame has no size yet (it fits itself to its contents)
-        hx, hy, hw, hh = state()["help"]
-        overlay = x_screen(env["DISPLAY"])[hy: hy + hh, hx: hx + hw]
+
+        def overlay_shown():
+            """The overlay as the X server shows it, once its lines are on the screen (its first frame has no size
+            yet, it fits itself to its contents; a busy machine presents a frame late)."""
+            hx, hy, hw, hh = state()["help"]
+            shot = x_screen(env["DISPLAY"])[hy: hy + hh, hx: hx + hw]
+            return [shot] if len(column_starts(shot.min(axis=2)[30:] > 170)) >= 15 else None
+
+        overlay = until(overlay_shown, 60, "the keys overlay's lines on the screen")[0]
         np.save(tmp_path / "keys.npy", overlay)
         xdotool("key", "h")
         until(lambda: state()["help"] is None, 30, "the overlay to close")
         step = state()["step"]
         xdotool("key", "ctrl+q")
-        code = proc.wait(120)
+        try:
+            code = proc.wait(120)
+        except subprocess.TimeoutExpired:  # where every thread waits, from faulthandler, in the failure
+            proc.send_signal(signal.SIGABRT)
+            raise AssertionError(f"Ctrl+Q did not close the window in 120 s:\n{proc.communicate(60)[0][-8000:]}")
         output = proc.stdout.read()
     finally:
         if proc.poll() is None:

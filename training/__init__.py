@@ -15,3 +15,9 @@ import os
 # machines we target, spinning torch and numba pools steal each other's cores; this made a 10k-Gaussian CPU
 # render+backward 2.5x slower (see docs/rasterizer.md). An explicit OMP_WAIT_POLICY in the environment wins.
 os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")
+
+# Before pycolmap: its extension carries a zlib of its own and exports its symbols. Loaded before anything has loaded
+# the system zlib, it answers OpenImageIO's calls too, and OpenImageIO's PNG writer then aborts the process in
+# deflateEnd ("free(): invalid pointer"; measured with pycolmap 4.2.1 and OpenImageIO 3.2: importing pycolmap and then
+# writing a PNG crashes, importing zlib first does not). Python's zlib module loads the system one.
+import zlib  # noqa: E402,F401

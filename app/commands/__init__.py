@@ -44,6 +44,19 @@ def warning(line: str) -> None:
     print(f"splatstyler: warning: {line}", file=sys.stderr)
 
 
+def starting() -> None:
+    """The imports a training command makes before its first step (torch, numba, the rasterizer, both trainers:
+    seconds on a busy machine), made where a stop still ends the process at once: nothing is under way yet, and
+    nothing checks for a stop inside an import (training/core/stop.py)."""
+    from training.core import stop
+
+    with stop.exit_at_once("while starting; nothing saved"):
+        import torch._dynamo  # noqa: F401  (what torch.optim's first optimizer imports: seconds of its own)
+
+        import training.reconstruct.trainer  # noqa: F401
+        import training.stylize.trainer  # noqa: F401
+
+
 def reconstruct_in_console(data, out, config, *, no_progress: bool = False, **options) -> dict:
     """``reconstruct_to_folder`` (training/reconstruct/pipeline.py; ``options`` are its keywords) with a progress
     bar, the run's lines and time estimates above it, warnings in one line, and the summary line at the end."""

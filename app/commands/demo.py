@@ -48,6 +48,9 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
+    from app.commands import starting
+
+    starting()
     from assets.demo.assets import demo_assets
     from training.stylize.style_image import load_style_image
 

@@ -52,6 +52,9 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
+    from app.commands import starting
+
+    starting()
     from app.evaluate.grid import load_grid
     from app.evaluate.report import write_report
     from app.evaluate.runner import LocalPool, RayPool, load_results, run_grid

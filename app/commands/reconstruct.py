@@ -49,8 +49,9 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from app.commands import reconstruct_in_console
+    from app.commands import reconstruct_in_console, starting
 
+    starting()
     reconstruct_in_console(args.data, args.output, settings.config_from_args(args), no_progress=args.no_progress,
                            resume=args.resume, force=args.force, overwrite=args.overwrite,
                            resume_config=lambda saved: settings.resumed_config(args, saved),

@@ -133,6 +133,7 @@ def run(args: argparse.Namespace) -> int:
     from app.render_inputs import load_model_arrays, parse_background, parse_size
 
     from training.core.errors import InputError
+    from training.core import stop
 
     size = parse_size(args.size)
     background = parse_background(args.background)
@@ -180,6 +181,7 @@ def run(args: argparse.Namespace) -> int:
             views = orbit_views(arrays[0], arrays[3], args.orbit, size, args.elevation, scene)
             args.output.mkdir(parents=True, exist_ok=True)
             for i, v in enumerate(views):
+                stop.check()
                 _write(args.output / f"{args.mode}_{i:04d}.{args.format}", renderer, v, args, background, fbos)
             print(f"wrote {len(views)} {args.format.upper()} images to {args.output} ({args.mode})")
     finally:

@@ -46,8 +46,9 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from app.commands import stylize_in_console
+    from app.commands import starting, stylize_in_console
 
+    starting()
     stylize_in_console(args.model, args.data, args.style, args.output, no_progress=args.no_progress,
                        resume=args.resume, force=args.force, overwrite=args.overwrite,
                        **settings.stylize_options(args, args.model))

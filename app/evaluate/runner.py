@@ -27,9 +27,12 @@ from typing import Any, Callable
 from app.evaluate.grid import Grid, Job, with_inputs
 from app.evaluate.jobs import run_job
 from training.evaluate.measure import METRICS_VERSION
+from training.core import stop
 from training.core.atomic_write import atomic_open
 from training.core.errors import InputError
 from training.core.version import version
+
+STOP_POLL_S = 0.2  # how often the driver, waiting on its workers, looks for a stop
 
 
 def result_path(out: Path, job: Job | str) -> Path:
@@ -100,7 +103,10 @@ class LocalPool:
         return self.pool.submit(run_job, asdict(job), str(out), self.threads)
 
     def wait(self, handles: list) -> list[tuple[Any, dict]]:
-        done, _ = cf.wait(handles, return_when=cf.FIRST_COMPLETED)
+        done: set = set()
+        while not done:  # in slices: a stop is recorded, not thrown, and is seen between two
+            stop.check()
+            done, _ = cf.wait(handles, timeout=STOP_POLL_S, return_when=cf.FIRST_COMPLETED)
         out = []
         for h in done:
             try:
@@ -141,7 +147,10 @@ class RayPool:
         return self.task.remote(asdict(job), str(out), self.threads)
 
     def wait(self, handles: list) -> list[tuple[Any, dict]]:
-        done, _ = self.ray.wait(handles, num_returns=1)
+        done: list = []
+        while not done:
+            stop.check()
+            done, _ = self.ray.wait(handles, num_returns=1, timeout=STOP_POLL_S)
         out = []
         for h in done:
             try:

@@ -66,8 +66,11 @@ def evaluate_views(
     alpha composited over the same ``background`` as the renders).
 
     Returns {"psnr": float | None, "ssim": float | None, "views": int}; None when ``indices`` is empty."""
+    from training.core import stop
+
     psnrs, ssims = [], []
     for i in indices:
+        stop.check()
         image, _, _ = render_view(gaussians, scene.cameras[i], sh_degree=sh_degree, background=background,
                                   backend=backend)
         mask = None if scene.masks[i] is None else torch.as_tensor(scene.masks[i], device=image.device)

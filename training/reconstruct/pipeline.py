@@ -15,6 +15,7 @@ from pathlib import Path
 from typing import Any, Callable
 
 from training.core.errors import InputError
+from training.core.messages import Scored
 from training.reconstruct.config import ReconstructConfig
 from training.reconstruct.early_stop import FlatWatch
 
@@ -23,8 +24,11 @@ class Stopped(KeyboardInterrupt):
     """The run was interrupted (Ctrl-C, SIGTERM) and its checkpoint saved: at ``iteration``, in ``checkpoint``. Its
     text completes "stopped by SIGTERM" (the CLI's line)."""
 
-    def __init__(self, iteration: int, checkpoint: Path):
-        super().__init__(f"at iteration {iteration}; checkpoint saved to {checkpoint} (continue with --resume)")
+    def __init__(self, iteration: int, checkpoint: Path, finished: bool = False):
+        what = ("after the last iteration, while writing the report; the model and checkpoint are saved (run again "
+                "with --resume to write the report)" if finished else
+                f"at iteration {iteration}; checkpoint saved to {checkpoint} (continue with --resume)")
+        super().__init__(what)
         self.iteration, self.checkpoint = iteration, checkpoint
 
 
@@ -46,14 +50,13 @@ def reconstruct_to_folder(data: str | Path, out: str | Path, config: Reconstruct
     save. ``listener`` receives the trainer's events (training/core/messages.py); ``log`` gets the lines describing the
     run, ``say`` the time estimates (default: ``log``), ``warn`` the warnings (default: ``warnings.warn``).
 
-    An interrupt (KeyboardInterrupt: Ctrl-C, SIGTERM) saves the checkpoint and goes on up as ``Stopped``."""
-    from training.core.atomic_write import atomic_open, check_output_dir, make_output_dir
+    A stop (Ctrl-C, SIGTERM: training/core/stop.py) saves the checkpoint and goes on up as ``Stopped``."""
+    from training.core import stop
+    from training.core.atomic_write import check_output_dir, make_output_dir
     from training.core.run_estimate import RunEstimate
-    from training.core.version import version
     from training.model.ply_io import write_ply
     from training.reconstruct.checkpoint import CHECKPOINT_NAME, load_checkpoint, save_checkpoint
     from training.reconstruct.metrics import constant_color_psnr
-    from training.reconstruct.regularizers import scale_stats
     from training.reconstruct.resolution import training_downscale
     from training.reconstruct.time_estimate import ReconstructSteps
     from training.reconstruct.trainer import Reconstructor
@@ -99,25 +102,27 @@ def reconstruct_to_folder(data: str | Path, out: str | Path, config: Reconstruct
         # resolved once; a resumed run keeps the factor its checkpoint recorded
         cfg.downscale = training_downscale(data, cfg.max_side, cfg.downscale)
 
-    scene = load_scene(data, downscale=cfg.downscale)
-    trainer = Reconstructor(scene, cfg)
-    cam0 = scene.cameras[0]
-    why = (f"long side at most {cfg.max_side} px" if cfg.max_side is not None else
-           ("full size" if cfg.downscale == 1 else f"--downscale {cfg.downscale}"))
-    log(f"training at {cam0.width}x{cam0.height} pixels (factor {cfg.downscale}: {why}; {cfg.preset} preset, "
-        f"{cfg.iterations} iterations)")
-    elapsed = 0.0
-    report_extra: dict = {}
-    if state is not None:
-        trainer.load_state_dict(state)
-        elapsed = float(state.get("elapsed", 0.0))
-        report_extra = dict(state.get("report_extra", {}))
-        log(f"resuming from {ckpt_path} at iteration {trainer.step_count}")
-    else:
-        init = trainer.evaluate(scene.test_indices or scene.train_indices)
-        report_extra = {"initial_psnr": init["psnr"], "initial_ssim": init["ssim"],
-                        "constant_color_psnr": constant_color_psnr(scene, scene.train_indices,
-                                                                   scene.test_indices or scene.train_indices)}
+    with stop.says("before the first iteration; nothing saved" if state is None else
+                   "before the resumed run's first iteration; its checkpoint is as it was"):
+        scene = load_scene(data, downscale=cfg.downscale)
+        trainer = Reconstructor(scene, cfg)
+        cam0 = scene.cameras[0]
+        why = (f"long side at most {cfg.max_side} px" if cfg.max_side is not None else
+               ("full size" if cfg.downscale == 1 else f"--downscale {cfg.downscale}"))
+        log(f"training at {cam0.width}x{cam0.height} pixels (factor {cfg.downscale}: {why}; {cfg.preset} preset, "
+            f"{cfg.iterations} iterations)")
+        elapsed = 0.0
+        report_extra: dict = {}
+        if state is not None:
+            trainer.load_state_dict(state)
+            elapsed = float(state.get("elapsed", 0.0))
+            report_extra = dict(state.get("report_extra", {}))
+            log(f"resuming from {ckpt_path} at iteration {trainer.step_count}")
+        else:
+            init = trainer.evaluate(scene.test_indices or scene.train_indices)
+            report_extra = {"initial_psnr": init["psnr"], "initial_ssim": init["ssim"],
+                            "constant_color_psnr": constant_color_psnr(scene, scene.train_indices,
+                                                                       scene.test_indices or scene.train_indices)}
     make_output_dir(out)
 
     def checkpoint() -> None:
@@ -146,6 +151,7 @@ def reconstruct_to_folder(data: str | Path, out: str | Path, config: Reconstruct
     estimate.begin(trainer.step_count)
     try:
         while not trainer.done:
+            stop.check()
             trainer.step()
             if eval_every and (trainer.step_count % eval_every == 0 or trainer.done):
                 t_eval = time.perf_counter()
@@ -153,27 +159,43 @@ def reconstruct_to_folder(data: str | Path, out: str | Path, config: Reconstruct
                 curve.append({"iteration": trainer.step_count, "psnr": point["psnr"], "ssim": point["ssim"]})
                 eval_seconds += time.perf_counter() - t_eval
                 report_extra["test_curve"], report_extra["test_curve_seconds"] = curve, eval_seconds
-                trainer.events.emit("test", trainer.step_count, {"test_psnr": point["psnr"],
-                                                                 "test_ssim": point["ssim"]})
+                trainer.events.emit(Scored, trainer.step_count, psnr=point["psnr"], ssim=point["ssim"])
                 estimate.not_a_step()
                 if flat is not None and flat.see(trainer.step_count, point["psnr"], trainer):
                     break
             if checkpoint_every > 0 and trainer.step_count % checkpoint_every == 0:
                 checkpoint()
-    except KeyboardInterrupt:
+    except BaseException as exc:
+        if not stop.is_stop(exc):
+            raise
         checkpoint()
         raise Stopped(trainer.step_count, ckpt_path) from None
     seconds = elapsed + (time.perf_counter() - t_start)
     if flat is not None:
         report_extra["early_stop"] = flat.finish(trainer, curve, say=log)
     checkpoint()
+    model = trainer.export_gaussians()
+    write_ply(out / "point_cloud.ply", model)
+    try:
+        return _finish(trainer, model, scene, cfg, data, out, seconds, estimate, report_extra, fingerprint, log)
+    except BaseException as exc:
+        if not stop.is_stop(exc):
+            raise
+        raise Stopped(trainer.step_count, ckpt_path, finished=True) from None
+
+
+def _finish(trainer, model, scene, cfg: ReconstructConfig, data: Path, out: Path, seconds: float, estimate,
+            report_extra: dict, fingerprint: dict, log: Callable[[str], None]) -> dict[str, Any]:
+    """After the last step (its checkpoint and model saved): the measures, the renders and the report."""
+    from training.core.atomic_write import atomic_open
+    from training.core.version import version
+    from training.reconstruct.regularizers import scale_stats
+
     timing = estimate.record()
     if timing["first_estimate_s"] is not None:
         report_extra["estimated_seconds"] = timing["first_estimate_s"]  # this session's, as printed first
     report_extra["time_estimate"] = timing
 
-    model = trainer.export_gaussians()
-    write_ply(out / "point_cloud.ply", model)
     train = trainer.evaluate(scene.train_indices)
     test = trainer.evaluate(scene.test_indices)
     views = _write_results(trainer, out, scene.test_indices or scene.train_indices, log)

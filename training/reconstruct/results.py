@@ -14,6 +14,7 @@ from typing import Callable, Sequence
 import numpy as np
 import torch
 
+from training.core import stop
 from training.reconstruct.metrics import psnr, render_view
 from training.reconstruct.ssim import ssim
 from training.scene.image_grid import depth_image, grid, shrink_to, side_by_side
@@ -40,6 +41,7 @@ def write_view_results(trainer, out: Path, indices: Sequence[int], lpips=None,
     renders = out / "renders"
     rows, views = [], []
     for k, i in enumerate(indices):
+        stop.check()
         cam = scene.cameras[i]
         image, alpha, _ = render_view(trainer.gaussians, cam, sh_degree=trainer.active_sh_degree,
                                       background=background, backend=trainer.config.backend,

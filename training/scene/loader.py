@@ -24,6 +24,7 @@ from pathlib import Path
 import numpy as np
 
 from training.scene.colmap_io import find_model_folder, read_colmap_model
+from training.core import stop
 from training.core.errors import InputError
 from training.scene.image_io import (image_size, is_image_file, read_header, read_image_with_alpha, resize_image,
                                write_image)
@@ -154,6 +155,7 @@ def _build_scene(source: Path, views: list[RawView], sources: list[Path], cached
 
         iterator = tqdm(iterator, desc="loading images", unit="img", disable=None, leave=False)
     for i in iterator:
+        stop.check()
         view, src = views[i], sources[i]
         rgb = alpha = None
         if load_images:

@@ -46,6 +46,7 @@ import numpy as np
 
 from training.core.atomic_write import atomic_open
 from training.core.errors import InputError
+from training.core import stop as user_stop
 from training.core.messages import Cancelled
 from training.core.version import version
 from training.scene.image_io import is_image_file, read_header, read_image_with_alpha, resize_image, write_image
@@ -317,6 +318,11 @@ def run_sfm(photos_dir: str | Path, output: str | Path, max_size: int = DEFAULT_
             json.dump(quality, f, indent=2)
         _move_into_place(partial, output)
         return result
+    except Cancelled:
+        if stop.user():
+            raise user_stop.StopRequested(f"during structure from motion; nothing written ({output} appears only "
+                                          "once complete)") from None
+        raise
     finally:
         report.close()
         shutil.rmtree(partial, ignore_errors=True)
@@ -367,14 +373,17 @@ class _Reporter:
 
 
 class _Stop:
-    """The caller's ``cancel``, asked between units of work (``check``) and, while a COLMAP call runs, every
-    STOP_POLL_S by a watcher that cancels the call's CancellationToken (``call``)."""
+    """The caller's ``cancel`` and the user's stop (training/core/stop.py, as the calling thread sees it), asked
+    between units of work (``check``) and, while a COLMAP call runs, every STOP_POLL_S by a watcher that cancels the
+    call's CancellationToken (``call``). Either raises Cancelled where it is seen (COLMAP's mapping callbacks
+    included); ``run_sfm`` turns the user's into StopRequested on its way out."""
 
     def __init__(self, cancel: Callable[[], bool] | None):
         self.cancel = cancel
+        self.user = user_stop.current()
 
     def requested(self) -> bool:
-        return self.cancel is not None and bool(self.cancel())
+        return (self.cancel is not None and bool(self.cancel())) or self.user()
 
     def check(self) -> None:
         if self.requested():
@@ -388,8 +397,6 @@ class _Stop:
         import pycolmap
 
         self.check()
-        if self.cancel is None:
-            return fn(*args, **kwargs)
         token, over = pycolmap.CancellationToken(), threading.Event()
 
         def watch() -> None:
