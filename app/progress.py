@@ -5,7 +5,7 @@ from __future__ import annotations
 
 import sys
 
-from training.core.messages import TrainerEvent
+from training.core.messages import Scored, Stepped, TrainerEvent
 
 # A bar redrawn ten times a second is right on a terminal; in a log file (SLURM, `> run.log`, an eval grid's job
 # logs) every redraw is kept, and a run's log grows by hundreds of KB. Off a terminal the bar is written at most
@@ -39,9 +39,9 @@ class ProgressBar:
         self._shown: dict[str, str | int] = {}
 
     def __call__(self, event: TrainerEvent) -> None:
-        if event.kind == "test" and event.metrics.get("test_psnr") is not None:
-            self._test = {"test": f"{event.metrics['test_psnr']:.2f} dB"}
-        if event.kind != "step":
+        if isinstance(event, Scored) and event.psnr is not None:
+            self._test = {"test": f"{event.psnr:.2f} dB"}
+        if not isinstance(event, Stepped):
             return
         m = event.metrics
         total = int(m.get("total_iters", 0)) or None

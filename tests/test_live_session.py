@@ -9,9 +9,11 @@ import time
 import numpy as np
 import pytest
 
-from app.viewer.live.session import Failed, LiveSession, Saved, Stage, UseModel
+from app.viewer.live.session import Failed, LiveSession, Saved, Stage
+from training.core.trainer import UseModel
 from app.viewer.live.stages import reconstruct_stage
 from training.reconstruct.checkpoint import load_checkpoint
+from training.core.messages import Stepped, StructureChanged
 
 
 @pytest.fixture(scope="module")
@@ -184,8 +186,8 @@ def test_a_live_delete_is_taken_by_a_paused_trainer_that_just_densified(tmp_path
     def build(_previous):
         trainer = tiny_reconstructor()
         # the view's snapshot at the moment the step is announced (the UI thread may take one at any moment)
-        trainer.add_listener(lambda e: trainer.snapshot() if e.kind == "step" else None)
-        trainer.add_listener(lambda e: structure.append(e.step) if e.kind == "structure" else None)
+        trainer.add_listener(lambda e: trainer.snapshot() if isinstance(e, Stepped) else None)
+        trainer.add_listener(lambda e: structure.append(e.step) if isinstance(e, StructureChanged) else None)
         return trainer
 
     app = ViewerApp(Paths(out=str(tmp_path / "out")))

@@ -14,7 +14,7 @@ from app.viewer.live.session import Failed, LiveSession, Said
 from app.settings.sfm import options_from_flags
 from app.viewer.live.session import LiveSession, SessionMessage
 from app.viewer.live.stages import reconstruct_stage, sfm_stage
-from training.core.messages import TrainerEvent
+from training.core.messages import Stepped, StructureChanged
 from training.scene.image_io import read_image, resize_image, write_image
 from training.scene.sfm import partial_folder
 
@@ -66,7 +66,7 @@ def test_stop_while_registering_leaves_no_scene_folder_and_one_line(photos, tmp_
     session = LiveSession()
     out = tmp_path / "out" / "scene"
     stage = stopping_at(session, sfm_stage(photos, out, QUICK),
-                        lambda e: e.kind == "step" and e.metrics.get("registered", 0) >= 3)
+                        lambda e: isinstance(e, Stepped) and e.metrics.get("registered", 0) >= 3)
     session.start([stage, reconstruct_stage(out, tmp_path / "out" / "reconstruction", iterations=3)])
     wait(lambda: not session.running, 300, "the stop")
     status = session.status()
@@ -78,7 +78,7 @@ def test_stop_while_registering_leaves_no_scene_folder_and_one_line(photos, tmp_
     assert sorted(p.name for p in (tmp_path / "out").iterdir()) == []  # no scene, no partial folder
     assert not partial_folder(out).exists()
     # what the window showed on the way: the phases in words, counted, with the registrations and points
-    events = [e for e in items if isinstance(e, TrainerEvent) and e.kind == "step"]
+    events = [e for e in items if isinstance(e, Stepped)]
     assert {e.message.split(":")[0] for e in events} >= {"preparing photos", "extracting features", "matching",
                                                          "registering"}
     assert status.detail.startswith("registering: 3 of 10 photos registered")
@@ -92,7 +92,7 @@ def test_the_scene_is_read_as_the_mapper_builds_it_and_the_reconstruction_starts
     previews = []
 
     def watch(event):
-        if event.kind == "structure":
+        if isinstance(event, StructureChanged):
             previews.append((len(session.cameras() or []), session.snapshot()))
 
     stage = listening(sfm_stage(photos, out / "scene", QUICK), watch)

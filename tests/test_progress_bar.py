@@ -6,7 +6,7 @@ import sys
 import time
 
 from app.progress import ProgressBar
-from training.core.messages import TrainerEvent
+from training.core.messages import Scored, Stepped
 
 
 class _Terminal(io.StringIO):
@@ -18,7 +18,7 @@ def _run(stream, monkeypatch, steps: int = 120, seconds: float = 1.2) -> str:
     monkeypatch.setattr(sys, "stderr", stream)
     bar = ProgressBar(desc="stylizing", postfix={"loss": "loss"})
     for i in range(1, steps + 1):
-        bar(TrainerEvent("step", "stylize", i, {"loss": 1.0 / i, "total_iters": steps}))
+        bar(Stepped("stylize", i, {"loss": 1.0 / i, "total_iters": steps}))
         time.sleep(seconds / steps)
     bar.close()
     return stream.getvalue()
@@ -41,9 +41,9 @@ def test_the_line_keeps_the_test_views_last_score(monkeypatch):
     stream = _Terminal()
     monkeypatch.setattr(sys, "stderr", stream)
     bar = ProgressBar(desc="reconstruct", postfix={"loss": "loss"})
-    bar(TrainerEvent("step", "reconstruct", 1, {"loss": 0.5, "total_iters": 3}))
-    bar(TrainerEvent("test", "reconstruct", 1, {"test_psnr": 21.234, "test_ssim": 0.7}))
+    bar(Stepped("reconstruct", 1, {"loss": 0.5, "total_iters": 3}))
+    bar(Scored("reconstruct", 1, psnr=21.234, ssim=0.7))
     for i in (2, 3):
-        bar(TrainerEvent("step", "reconstruct", i, {"loss": 0.25, "total_iters": 3}))
+        bar(Stepped("reconstruct", i, {"loss": 0.25, "total_iters": 3}))
     bar.close()
     assert "test=21.23 dB" in stream.getvalue().rsplit("\r", 1)[-1]

@@ -6,7 +6,7 @@ from __future__ import annotations
 import pytest
 import torch
 
-from training.core.messages import TrainerEvent
+from training.core.messages import Stepped
 from training.core.run_estimate import RunEstimate, UniformSteps, format_duration
 from training.reconstruct.densify import DensifyConfig
 from training.reconstruct.time_estimate import mean_planned_gaussians, planned_gaussians
@@ -24,7 +24,7 @@ def run_steps(estimate: RunEstimate, clock: Clock, step_seconds, total: int, sta
     estimate.begin(start)
     for step in range(start + 1, total + 1):
         clock.t += step_seconds(step)
-        estimate(TrainerEvent("step", "test", step, {"total_iters": total}))
+        estimate(Stepped("test", step, {"total_iters": total}))
 
 
 def test_uniform_steps_say_one_estimate_when_the_time_holds():
@@ -123,7 +123,7 @@ def test_reconstruction_estimate_waits_a_tenth_of_the_run_and_adds_the_planned_g
     n = 5000
     for step in range(1, 502):
         clock.t += 0.6 if step < 300 else 0.1  # a random start's slow first steps
-        est(TrainerEvent("step", "reconstruct", step, {"total_iters": 5000, "num_gaussians": n}))
+        est(Stepped("reconstruct", step, {"total_iters": 5000, "num_gaussians": n}))
     rec = est.record()
     assert rec["first_estimate_at_iteration"] == 500  # a tenth of the run, not the slow start
     elapsed = 299 * 0.6 + 201 * 0.1

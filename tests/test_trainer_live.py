@@ -10,7 +10,7 @@ import pytest
 import torch
 
 from assets.demo.scene import make_demo_scene
-from training.core.messages import Cancelled, TrainerEvent
+from training.core.messages import Cancelled, Finished, Stepped, StructureChanged, TrainerEvent, ViewMoved
 from training.model.gaussian_init import gaussians_from_points
 from training.reconstruct.densify import DensifyConfig
 from training.reconstruct.trainer import ReconstructConfig, Reconstructor
@@ -52,7 +52,7 @@ def test_snapshots_are_never_torn_while_training_densifies_and_config_changes(sc
     stop = threading.Event()
     config_changed = threading.Event()
     structure_steps: list[int] = []
-    trainer.add_listener(lambda e: structure_steps.append(e.step) if e.kind == "structure" else None)
+    trainer.add_listener(lambda e: structure_steps.append(e.step) if isinstance(e, StructureChanged) else None)
 
     def reader() -> None:
         try:
@@ -126,11 +126,11 @@ def test_reconstruct_events_drive_a_progress_count(scene):
     trainer.add_listener(events.append)
     while not trainer.done:
         trainer.step()
-    steps = [e for e in events if e.kind == "step"]
+    steps = [e for e in events if isinstance(e, Stepped)]
     assert [e.step for e in steps] == [1, 2, 3, 4, 5, 6]
     assert all(e.stage == "reconstruct" and e.metrics["total_iters"] == 6 for e in steps)
     assert all(np.isfinite(e.metrics["loss"]) and "times/rasterize" in e.metrics for e in steps)
-    assert [e.kind for e in events][-1] == "finished" and events[-1].step == 6
+    assert isinstance(events[-1], Finished) and events[-1].step == 6
 
 
 # ------------------------------------------------------------------------------------------------ stylizer
@@ -198,7 +198,7 @@ def test_stylize_status_is_published_whole_after_each_step_and_each_deletion(tin
     first = s.status()
     assert first.stage == "stylize" and first.step == 0 and first.capacity is None and first.losses == {}
     seen = []
-    s.add_listener(lambda e: seen.append((e.step, s.status().step)) if e.kind == "step" else None)
+    s.add_listener(lambda e: seen.append((e.step, s.status().step)) if isinstance(e, Stepped) else None)
     for _ in range(3):
         s.step()
     st = s.status()
@@ -223,9 +223,8 @@ def test_stylize_events_and_cancelled_finish(tiny, vgg):
     events: list[TrainerEvent] = []
     s.add_listener(events.append)
     s.run()
-    kinds = [e.kind for e in events]
-    assert kinds.count("step") == s.total_iters and kinds[-1] == "finished"
-    views = [e.metrics["trajectory_position"] for e in events if e.kind == "view"]
+    assert sum(isinstance(e, Stepped) for e in events) == s.total_iters and isinstance(events[-1], Finished)
+    views = [e.trajectory_position for e in events if isinstance(e, ViewMoved)]
     assert views[:3] == [1.0, 2.0, 3.0]
     before = s.gaussians.sh.detach().clone()
     calls = []
@@ -251,7 +250,7 @@ def test_stylize_keep_removes_gaussians_between_steps(tiny, vgg):
     after = s.snapshot()
     assert len(after) == keep.sum() and after.geometry_version > before.geometry_version
     assert np.array_equal(after.means, before.means[keep]) and np.array_equal(after.sh, before.sh[keep])
-    assert any(e.kind == "structure" and e.metrics["num_gaussians"] == keep.sum() for e in events)
+    assert any(isinstance(e, StructureChanged) and e.num_gaussians == keep.sum() for e in events)
     s.step()  # the next step trains the smaller model
     assert s.snapshot().sh.shape[0] == keep.sum()
     with pytest.raises(ValueError, match="every Gaussian"):

@@ -21,6 +21,7 @@ from app.viewer import files
 from app.viewer.app import ViewerApp
 from app.viewer.live import runs
 from app.viewer.live.session import Failed, LiveSession, Saved, Stage
+from training.core.messages import Stepped
 from app.viewer.live.stages import reconstruct_stage, stylize_stage
 from app.viewer.state import Paths
 from tests.viewer_harness import make_demo_scene
@@ -85,7 +86,7 @@ def test_a_stop_during_the_final_colour_transfer_keeps_the_finished_stylization(
 
                 trainer.model.render = counted
             else:
-                trainer.add_listener(lambda e: session.stop() if e.kind == "step" and e.step == 3 else None)
+                trainer.add_listener(lambda e: session.stop() if isinstance(e, Stepped) and e.step == 3 else None)
             return trainer
 
         session.start([Stage("stylize", build, inner.save, inner.outputs)])

@@ -59,6 +59,7 @@ def test_x11_new_from_photos_shows_cameras_and_points_as_they_register_then_reco
            **file_dialog_answering(tmp_path / "dialog", photos)}
     found = run_gui(PRELUDE + """
 import pickle, threading
+from training.core.messages import StructureChanged
 app = ViewerApp(Paths(out=str(OUT / "out")))
 start = app.session.start
 captured = threading.Event()
@@ -68,7 +69,7 @@ def held(event):
     # view's refreshes would miss: each registration is held on the mapper's thread, so they are seen one by one,
     # and from the fourth on until the screen is captured (beside a trainer on software GL the window draws twice
     # a second, slower than the held registrations come)
-    if event.kind == "structure":
+    if isinstance(event, StructureChanged):
         time.sleep(0.5)
         if event.step >= 4:
             captured.wait(300)

@@ -31,7 +31,7 @@ from app.viewer.live import photos, runs
 from app.viewer.live.session import Failed, LiveSession, Said, Saved, StageBegan, StateChanged
 from app.viewer.platform import choose_platform, prepare_glfw
 from app.viewer.state import Paths, TrainingState, Ui
-from training.core.messages import ModelSnapshot, TrainerEvent
+from training.core.messages import ModelSnapshot, Noted, ViewMoved, Warned
 
 IDLE_FPS = 4.0  # frames per second while nothing happens: each frame costs a running trainer CPU time
 # ... and while a trainer runs on software GL: a frame of the whole window there is about 65 ms of llvmpipe's CPU at
@@ -280,13 +280,12 @@ class ViewerApp:
                 if item.stage == "stylize" and item.state in ("finished", "stopped", "error"):
                     style_back(ui)
                 photos.note_state(ui, item.state)
-            elif isinstance(item, TrainerEvent):
-                if item.kind == "view":
-                    self._overlays_stale = True
-                elif item.kind == "warning":
-                    ui.messages.say(f"warning: {item.message}")
-                elif item.kind == "info":
-                    ui.messages.say(item.message)
+            elif isinstance(item, ViewMoved):
+                self._overlays_stale = True
+            elif isinstance(item, Warned):
+                ui.messages.say(f"warning: {item.message}")
+            elif isinstance(item, Noted):
+                ui.messages.say(item.message)
         runs.finish_pending(ui)
         ui.messages.guarded("photos", photos.end_when_done, doc, session, ui)
         watch_style_tab(ui)

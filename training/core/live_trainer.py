@@ -22,6 +22,7 @@ import torch
 
 from training.core.messages import EventSource, ModelSnapshot, checked_config_changes, frozen_array
 from training.core.status import TrainerStatus
+from training.core.trainer import Keep, SetRegion, UseModel
 
 
 class LiveTrainer:
@@ -61,6 +62,36 @@ class LiveTrainer:
     def _build_status(self) -> TrainerStatus:
         """The status now; called with the lock held."""
         raise NotImplementedError
+
+    # ------------------------------------------------------------------ commands (training/core/trainer.py)
+    def apply(self, command):
+        """Carry out ``command`` now (the caller runs it between two steps) and return its result; ValueError in
+        one line when this trainer cannot."""
+        if isinstance(command, Keep):
+            if self.structure_version != command.structure_version:
+                raise ValueError("the trainer changed its Gaussians since the selection was made: select again")
+            return self.keep(command.keep)
+        if isinstance(command, SetRegion):
+            return self.set_region(command.mask)
+        if isinstance(command, UseModel):
+            return command.use(self.whole_model(), self.input_colours())
+        raise TypeError(f"not a command for a trainer: {command!r}")
+
+    def keep(self, keep) -> None:
+        """Keep only the Gaussians where ``keep`` (N,) bool."""
+        raise NotImplementedError
+
+    def set_region(self, mask) -> None:
+        """The Gaussians the next steps change ((N,) bool, None: all); a trainer that has no such region refuses."""
+        raise ValueError(f"the {self._published.stage} stage has no region to stylize")
+
+    def whole_model(self):
+        """The model whole: Gaussians detached, on the CPU."""
+        raise NotImplementedError
+
+    def input_colours(self):
+        """The colours the run started from (N, K, 3) on the CPU, where it keeps them (a stylization); else None."""
+        return None
 
     # ------------------------------------------------------------------ config
     def update_config(self, **changes: Any):

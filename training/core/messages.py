@@ -1,7 +1,8 @@
 """What a trainer and whoever drives it (the CLI's progress bar, the viewer's session) pass to each other.
 
-Out of the trainer: ``TrainerEvent``s, one small typed form for both trainers, delivered to listeners registered
-with ``add_listener``; ``ModelSnapshot``s, consistent numpy copies of what a viewer draws, with version numbers; and
+Out of the trainer: ``TrainerEvent``s, one type for each thing that happens (``Stepped``, ``StructureChanged``,
+``ViewMoved``, ``Scored``, ``Finished``, ``Warned``, ``Noted``), delivered to listeners registered with
+``add_listener``; ``ModelSnapshot``s, consistent numpy copies of what a viewer draws, with version numbers; and
 the ``TrainerStatus`` it publishes after each step (status.py).
 Into the trainer: config changes (``update_config``), checked by ``checked_config_changes`` against the fields that
 only construction may set. A long call that loops over views takes a ``cancel`` callable and raises ``Cancelled``
@@ -15,32 +16,73 @@ from __future__ import annotations
 
 import threading
 from dataclasses import dataclass, field, fields, replace
-from typing import Any, Callable, Literal
+from typing import Any, Callable
 
 import numpy as np
 
-EventKind = Literal["step", "structure", "view", "test", "finished", "warning", "info"]
-EVENT_KINDS: tuple[str, ...] = ("step", "structure", "view", "test", "finished", "warning", "info")
-
+from training.core import stop
 
 @dataclass(frozen=True)
 class TrainerEvent:
-    """One thing that happened in a trainer.
+    """Something that happened in a trainer, matched by its type: ``stage`` names the trainer ("reconstruct",
+    "stylize", or "sfm": structure from motion, whose work is no series of steps, so its ``Stepped`` events count the
+    units of its current phase), ``step`` is its step count when it happened."""
 
-    kind: "step" (``metrics`` holds the step's scalar metrics), "structure" (the number or geometry of the Gaussians
-    changed: densification, pruning, a NaN restore, an edit; ``metrics["num_gaussians"]``), "view" (a stylizer moved
-    to another view of its trajectory; ``metrics["trajectory_position"]``), "test" (the held-out views were scored
-    during a run, by whoever drives it; ``metrics["test_psnr"]``, ``metrics["test_ssim"]``), "finished" (the
-    schedule is done), "warning" (``message`` says what, in one line), "info" (a line for the user that is no
-    warning: what the console prints). ``step`` is the trainer's step count when it happened; ``stage`` names the
-    trainer ("reconstruct", "stylize", or "sfm": structure from motion, whose work is no series of steps, so its
-    "step" events count the units of its current phase, ``metrics["total_iters"]`` of them, and say the phase in
-    ``message``)."""
-
-    kind: EventKind
     stage: str
     step: int
+
+
+@dataclass(frozen=True)
+class Stepped(TrainerEvent):
+    """A step ended. ``metrics``: its scalar figures (timings flattened as ``times/name``; ``total_iters``, the
+    schedule's length then); ``message``: SfM's phase in words."""
+
     metrics: dict[str, float] = field(default_factory=dict)
+    message: str = ""
+
+
+@dataclass(frozen=True)
+class StructureChanged(TrainerEvent):
+    """The number or geometry of the Gaussians changed (densification, pruning, a NaN restore, an edit; SfM: the
+    sparse points grew): ``num_gaussians`` now, ``counts`` what changed (cloned, split, pruned)."""
+
+    num_gaussians: int = 0
+    counts: dict[str, float] = field(default_factory=dict)
+
+
+@dataclass(frozen=True)
+class ViewMoved(TrainerEvent):
+    """A stylizer moved to another view of its trajectory."""
+
+    trajectory_position: int = 0
+    view_index: int = 0
+    virtual: bool = False
+
+
+@dataclass(frozen=True)
+class Scored(TrainerEvent):
+    """The held-out views were scored during a run, by whoever drives it."""
+
+    psnr: float | None = None
+    ssim: float | None = None
+
+
+@dataclass(frozen=True)
+class Finished(TrainerEvent):
+    """The schedule is done."""
+
+
+@dataclass(frozen=True)
+class Warned(TrainerEvent):
+    """A warning, in one line."""
+
+    message: str = ""
+
+
+@dataclass(frozen=True)
+class Noted(TrainerEvent):
+    """A line for the user that is no warning (what the console prints)."""
+
     message: str = ""
 
 
@@ -64,8 +106,18 @@ class EventSource:
             if listener in self._listeners:
                 self._listeners.remove(listener)
 
-    def emit(self, kind: EventKind, step: int, metrics: dict[str, Any] | None = None, message: str = "") -> None:
-        event = TrainerEvent(kind, self._stage, int(step), _scalars(metrics or {}), message)
+    @property
+    def stage(self) -> str:
+        return self._stage
+
+    def emit(self, kind: type[TrainerEvent], step: int, **fields_: Any) -> None:
+        """Send a ``kind`` event of this source's stage at ``step`` to every listener (a Stepped's metrics reduced
+        to plain numbers)."""
+        if "metrics" in fields_:
+            fields_["metrics"] = _scalars(fields_["metrics"] or {})
+        if "counts" in fields_:
+            fields_["counts"] = _scalars(fields_["counts"] or {})
+        event = kind(self._stage, int(step), **fields_)
         with self._listeners_lock:
             listeners = list(self._listeners)
         for listener in listeners:
@@ -119,8 +171,11 @@ class Cancelled(Exception):
 
 
 def check_cancel(cancel: Callable[[], bool] | None) -> None:
+    """Between two units of a long call: Cancelled when ``cancel()`` says so, StopRequested when the user asked to
+    stop (training/core/stop.py)."""
     if cancel is not None and cancel():
         raise Cancelled()
+    stop.check()
 
 
 def checked_config_changes(config: Any, changes: dict[str, Any], fixed: tuple[str, ...], what: str) -> Any:

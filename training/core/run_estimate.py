@@ -29,6 +29,8 @@ import time
 from collections import deque
 from typing import Any, Callable, Protocol
 
+from training.core.messages import Stepped
+
 REVISE_BY = 0.2
 
 
@@ -85,7 +87,7 @@ class RunEstimate:
         self.load_at_begin = load_average()
 
     def __call__(self, event) -> None:
-        if event.kind != "step" or event.metrics.get("recovered"):
+        if not isinstance(event, Stepped) or event.metrics.get("recovered"):
             return
         now = self.clock()
         if self.t_begin is None:

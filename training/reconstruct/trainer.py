@@ -33,7 +33,8 @@ import warnings
 import torch
 
 from training.core.live_trainer import LiveTrainer
-from training.core.status import TrainerStatus, scalars
+from training.core.messages import Finished, Stepped, StructureChanged, Warned
+from training.core.status import ReconstructStatus, scalars
 
 from training.reconstruct.config import FIXED_AT_START, ReconstructConfig
 from training.reconstruct.densify import PARAM_NAMES, DensifyStrategy
@@ -169,14 +170,18 @@ class Reconstructor(LiveTrainer):
     def _snapshot_colours(self):
         return self.gaussians.sh, self.gaussians.sh_degree
 
-    def _build_status(self) -> TrainerStatus:
-        return TrainerStatus("reconstruct", self.step_count, self.total_iters, str(self.device), len(self.gaussians),
-                             self._structure_version, self.config, editable=True, losses=self._last_losses)
+    def _build_status(self) -> ReconstructStatus:
+        return ReconstructStatus("reconstruct", self.step_count, self.total_iters, str(self.device),
+                                 len(self.gaussians), self._structure_version, self.config, editable=True,
+                                 losses=self._last_losses)
 
     def _model_changed(self) -> None:
         """Call with the lock held after any write to the model: every step moves the geometry too."""
         self._version += 1
         self._geometry_version += 1
+
+    def whole_model(self) -> Gaussians:
+        return self.export_gaussians()
 
     def keep(self, keep) -> None:
         """Keep only the Gaussians where ``keep`` (N,) bool (a deletion or crop in the viewer); any thread, effective
@@ -199,7 +204,7 @@ class Reconstructor(LiveTrainer):
             self._structure_changed()
             self._snapshot = self._take_snapshot()  # a NaN restore must not bring the removed ones back
         self._publish_status()
-        self.events.emit("structure", self.step_count, {"num_gaussians": len(self.gaussians)})
+        self.events.emit(StructureChanged, self.step_count, num_gaussians=len(self.gaussians))
 
     def load_parameters(self, params: dict) -> None:
         """Make copies of ``params`` (a ``Gaussians.parameters()`` dict, e.g. an earlier step's) the model; Adam's
@@ -216,7 +221,7 @@ class Reconstructor(LiveTrainer):
             self._structure_changed()
             self._snapshot = self._take_snapshot()
         self._publish_status()
-        self.events.emit("structure", self.step_count, {"num_gaussians": len(self.gaussians)})
+        self.events.emit(StructureChanged, self.step_count, num_gaussians=len(self.gaussians))
 
     # ----------------------------------------------------------------------------------------------- set-up
     def _make_optimizer(self) -> torch.optim.Adam:
@@ -349,11 +354,11 @@ class Reconstructor(LiveTrainer):
                 **counts, "recovered": False, "times": times, "raster_times": dict(info.get("timings", {}))}
         self._last_losses = scalars(result, LOSSES)
         self._publish_status()
-        self.events.emit("step", i, {**result, "total_iters": self.total_iters})
+        self.events.emit(Stepped, i, metrics={**result, "total_iters": self.total_iters})
         if restructured:
-            self.events.emit("structure", i, {"num_gaussians": len(self.gaussians), **counts})
+            self.events.emit(StructureChanged, i, num_gaussians=len(self.gaussians), counts=counts)
         if i == self.total_iters:
-            self.events.emit("finished", i)
+            self.events.emit(Finished, i)
         return result
 
     # ------------------------------------------------------------------------------------------ NaN recovery
@@ -394,9 +399,9 @@ class Reconstructor(LiveTrainer):
         result = {"step": step, "loss": float("nan"), "psnr": float("nan"), "num_gaussians": len(self.gaussians),
                   "sh_degree": self.active_sh_degree, "view": view, "recovered": True, "times": times}
         self._publish_status(locked=locked)
-        self.events.emit("warning", step, message=message)
-        self.events.emit("structure", step, {"num_gaussians": len(self.gaussians)})
-        self.events.emit("step", step, {**result, "total_iters": self.total_iters})
+        self.events.emit(Warned, step, message=message)
+        self.events.emit(StructureChanged, step, num_gaussians=len(self.gaussians))
+        self.events.emit(Stepped, step, metrics={**result, "total_iters": self.total_iters})
         return result
 
     # ------------------------------------------------------------------------------------------- evaluation

@@ -27,6 +27,7 @@ from dataclasses import replace
 
 import numpy as np
 
+from training.core.status import StylizeStatus
 from training.model.colour_edit import ColourAdjustment, ColourEdits
 
 _versions = itertools.count(1 << 40)  # derived snapshots' versions: never a trainer's or an opened model's
@@ -96,7 +97,7 @@ def with_strength(edits: ColourEdits, region, value: float) -> ColourEdits:
 # --------------------------------------------------------------------------------------------- the original
 def strength_problem(doc, session) -> str | None:
     """Why style strength cannot apply to the model shown (one line), or None."""
-    run = session.trainer_status("stylize")
+    run = session.trainer_status(StylizeStatus)
     if run is not None:
         if not run.colour_only:
             return "style strength needs a colour-only stylization: this one moved the geometry too (params all)"
@@ -117,7 +118,7 @@ def strength_problem(doc, session) -> str | None:
 # --------------------------------------------------------------------------------------------- what the view shows
 def _original_rows(doc, session, snap) -> np.ndarray | None:
     """The run's original SH for ``snap``'s rows, or None when it has none that pair."""
-    if session.trainer_status("stylize") is not None:
+    if session.trainer_status(StylizeStatus) is not None:
         if strength_problem(doc, session) is not None:
             return None
         sh = session.original_colours()
@@ -134,7 +135,7 @@ def displayed(doc, session, snap):
     edits = doc.colour
     if edits.is_identity:
         return snap
-    run = session.trainer_status("stylize")
+    run = session.trainer_status(StylizeStatus)
     original_key = id(session.original_colours()) if run is not None else id(doc.original)
     key = (id(doc), snap.version, snap.geometry_version, id(edits), id(ed.index), original_key, id(doc.source),
            id(ed.extras.get("world")))

@@ -10,7 +10,8 @@ from pathlib import Path
 
 import numpy as np
 
-from app.viewer.live.session import Keep, SetRegion
+from training.core.status import StylizeStatus
+from training.core.trainer import Keep, SetRegion
 from app.viewer.live.stages import reconstruct_stage, stylize_stage
 
 
@@ -111,7 +112,7 @@ def set_style_region(doc, session, ui, region: str) -> None:
     """Which Gaussians the stylization changes; a running stylizer takes it at its next step."""
     ui.edit.region = region
     # while the stylization loads, the trainer held is the stage before's: the stylizer starts with the region
-    if stylizing(session) and session.trainer_status("stylize") is not None:
+    if stylizing(session) and session.trainer_status(StylizeStatus) is not None:
         submit_to_trainer(session, ui, "stylize region", SetRegion(region_mask(doc, ui)))
 
 
@@ -154,7 +155,7 @@ def edit_live(doc, session, ui) -> None:
 def trajectory(doc, session, ui) -> list[tuple[int, np.ndarray, bool]]:
     """(source camera index, centre, is virtual) in optimisation order: the running stylizer's, or the order the
     next stylization would follow."""
-    running = session.trainer_status("stylize")
+    running = session.trainer_status(StylizeStatus)
     if session.status().stage == "stylize" and running is not None:
         return [(stop.source_index, stop.center, stop.is_virtual) for stop in running.trajectory]
     cams = doc.cameras
@@ -175,13 +176,13 @@ def trajectory(doc, session, ui) -> list[tuple[int, np.ndarray, bool]]:
 
 def current_view_index(session) -> int | None:
     """Trajectory position of the view the stylizer optimises now (None when no stylizer runs)."""
-    running = session.trainer_status("stylize")
+    running = session.trainer_status(StylizeStatus)
     return running.trajectory_position if session.status().stage == "stylize" and running is not None else None
 
 
 def current_camera_index(session) -> int | None:
     """The dataset camera the stylizer optimises now (None when none runs or the view is a virtual one)."""
-    running = session.trainer_status("stylize")
+    running = session.trainer_status(StylizeStatus)
     if session.status().stage != "stylize" or running is None:
         return None
     stop = running.trajectory[running.trajectory_position]
@@ -192,7 +193,7 @@ def stylize_progress(session) -> str:
     """"pass p of P, view v" while a stylization runs (v: the trajectory position the View order panel numbers,
     the view the next step optimises; under the interleaved schedule it moves at every step), else "". From the
     status the stylizer published after its last step."""
-    running = session.trainer_status("stylize")
+    running = session.trainer_status(StylizeStatus)
     if not session.running or session.status().stage != "stylize" or running is None:
         return ""
     position = running.trajectory_position

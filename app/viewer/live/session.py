@@ -37,8 +37,10 @@ from typing import Any, Callable
 
 import numpy as np
 
-from training.core.messages import Cancelled, ModelSnapshot, TrainerEvent
-from training.core.status import TrainerStatus
+from training.core import stop
+from training.core.messages import Cancelled, ModelSnapshot, Stepped, TrainerEvent
+from training.core.status import SfmStatus, StylizeStatus, TrainerStatus
+from training.core.trainer import Command, Trainer, UseModel
 
 STATES = ("idle", "loading", "running", "paused", "finishing", "finished", "stopped", "error")
 
@@ -86,33 +88,43 @@ class Said:
 SessionMessage = StageBegan | StateChanged | Saved | Failed | Said
 
 
-# ---------------------------------------------------------------------------------- commands for the trainer (submit)
+# ---------------------------------------------------------------------------------- the session's own commands
 @dataclass(frozen=True)
-class Keep:
-    """Keep only the Gaussians where ``keep`` (N,) bool (a deletion or crop), if the trainer's Gaussians are still
-    those of ``structure_version`` (the version the selection was made on; densification in between would shift the
-    rows)."""
-
-    keep: np.ndarray
-    structure_version: int
+class _Pause:
+    pass
 
 
 @dataclass(frozen=True)
-class SetRegion:
-    """The Gaussians a running stylization changes from its next step on, (N,) bool over its rows (None: all)."""
-
-    mask: np.ndarray | None
+class _Resume:
+    pass
 
 
 @dataclass(frozen=True)
-class UseModel:
-    """``use(gaussians, original_sh)`` with the trainer's model whole (detached, on the CPU) and, for a stylization,
-    its input colours (N, K, 3) (else None); its result is the Future's."""
-
-    use: Callable[[Any, Any], Any]
+class _SingleStep:
+    """One step, then paused."""
 
 
-Command = Keep | SetRegion | UseModel
+@dataclass(frozen=True)
+class _PauseAt:
+    step: int | None
+
+
+@dataclass(frozen=True)
+class _Wake:
+    """Nothing to do: a paused thread waiting for a command looks at the stop again."""
+
+
+@dataclass(frozen=True)
+class _Call:
+    """A trainer's command (training/core/trainer.py) for the trainer of ``stage``, its result into ``future``."""
+
+    command: Command
+    future: Future
+    trainer: Trainer
+    stage: str
+
+
+SessionCommand = _Pause | _Resume | _SingleStep | _PauseAt | _Wake | _Call
 
 
 @dataclass
@@ -192,25 +204,23 @@ class LiveSession:
         self._thread.start()
 
     def pause(self) -> None:
-        self._commands.put(("pause",))
+        self._commands.put(_Pause())
 
     def resume(self) -> None:
-        self._commands.put(("resume",))
+        self._commands.put(_Resume())
 
     def single_step(self) -> None:
         """One step, then paused."""
-        self._commands.put(("step",))
+        self._commands.put(_SingleStep())
 
     def pause_at(self, step: int | None) -> None:
-        self._commands.put(("pause_at", step))
+        self._commands.put(_PauseAt(step))
 
     def stop(self) -> None:
+        """Stop the run: between two steps, or inside a long call of the training thread (a whole SfM, a load, the
+        outputs), which checks the stop between its units of work (training/core/stop.py)."""
         self._stop.set()
-        self._commands.put(("wake",))
-        # a trainer whose one step is long (SfM) is told now; one still being built sees the stop before stepping
-        interrupt = getattr(self._trainer, "interrupt", None)
-        if interrupt is not None and self.running:
-            interrupt()
+        self._commands.put(_Wake())
 
     def release(self) -> None:
         """Forget a run that has ended: its trainer stops being the model the viewer shows and edits (opening
@@ -240,7 +250,7 @@ class LiveSession:
         with self._lock:  # not between the thread's last look at the queue and its end: nobody would answer
             if not self.running or trainer is None or not self._taking_calls:
                 raise ValueError("no trainer is running")
-            self._commands.put(("call", command, future, trainer, self._status.stage))
+            self._commands.put(_Call(command, future, trainer, self._status.stage))
         return future
 
     def update_config(self, **changes: Any) -> str | None:
@@ -277,13 +287,13 @@ class LiveSession:
         """A trainer is held (running, or ended and not released): the view shows its model, not the document's."""
         return self._trainer is not None
 
-    def trainer_status(self, stage: str | None = None) -> TrainerStatus | None:
+    def trainer_status(self, kind: type[TrainerStatus] = TrainerStatus) -> TrainerStatus | None:
         """The status the trainer published last (its own stage's: while the next stage loads, the last stage's
-        trainer is still the one held); None when none is held, or, given ``stage``, when the one held is another
-        stage's."""
+        trainer is still the one held); None when none is held, or when the one held is not of type ``kind``
+        (``StylizeStatus``: a stylization's)."""
         trainer = self._trainer
         status = None if trainer is None else trainer.status()
-        return None if status is None or (stage is not None and status.stage != stage) else status
+        return status if isinstance(status, kind) else None
 
     def snapshot(self) -> ModelSnapshot | None:
         trainer = self._trainer
@@ -292,7 +302,8 @@ class LiveSession:
     def original_colours(self) -> np.ndarray | None:
         """A stylization's input colours (N, K, 3) over its current rows, read-only (what style strength blends
         back); None when the trainer held is no stylization. The same array until its rows change."""
-        sh = getattr(self._trainer, "original_sh", None)
+        status = self.trainer_status(StylizeStatus)
+        sh = None if status is None else status.original_sh
         if sh is None:
             return None
         if self._original[0] is not sh:
@@ -304,8 +315,8 @@ class LiveSession:
     def cameras(self) -> list | None:
         """The cameras the running stage has placed so far (SfM's registered photos, pinhole Camera), or None for
         a stage that places none."""
-        status = self.trainer_status()
-        return list(status.cameras) if status is not None and status.stage == "sfm" else None
+        status = self.trainer_status(SfmStatus)
+        return None if status is None else list(status.cameras)
 
     def poll(self) -> list[TrainerEvent | SessionMessage]:
         """Everything that happened since the last poll, oldest first; never blocks."""
@@ -332,7 +343,7 @@ class LiveSession:
 
     def _on_event(self, event: TrainerEvent) -> None:
         self._out.put(event)
-        if event.kind == "step":
+        if isinstance(event, Stepped):
             self.history.append({"step": float(event.step), **event.metrics})
             with self._lock:
                 self._status.step = event.step
@@ -343,36 +354,34 @@ class LiveSession:
                     left = event.metrics["seconds_left"]
                     self._status.seconds_left = left if left >= 0 else None
 
-    def _handle(self, command: tuple) -> bool:
+    def _handle(self, command: SessionCommand) -> bool:
         """Apply one command; True when it asks for exactly one step."""
-        name = command[0]
-        if name == "pause":
+        if isinstance(command, _Pause):
             self._paused = True
             self._set(state="paused")
-        elif name == "resume":
+        elif isinstance(command, _Resume):
             self._paused = False
             self._set(state="running")
-        elif name == "pause_at":
-            self._pause_at = command[1]
-        elif name == "step":
+        elif isinstance(command, _PauseAt):
+            self._pause_at = command.step
+        elif isinstance(command, _SingleStep):
             self._paused = True
             return True
-        elif name == "call":
-            _, call, future, trainer, stage = command
-            if not future.set_running_or_notify_cancel():
+        elif isinstance(command, _Call):
+            if not command.future.set_running_or_notify_cancel():
                 pass
-            elif trainer is not self._trainer:
-                future.set_exception(RuntimeError(f"the {stage} stage ended before this reached its model: "
-                                                  "do it again on the model shown now"))
+            elif command.trainer is not self._trainer:
+                command.future.set_exception(RuntimeError(f"the {command.stage} stage ended before this reached its "
+                                                          "model: do it again on the model shown now"))
             else:
-                self._carry_out(call, trainer, future)
+                self._carry_out(command.command, command.trainer, command.future)
         return False
 
-    def _carry_out(self, command: Command, trainer, future: Future) -> None:
+    def _carry_out(self, command: Command, trainer: Trainer, future: Future) -> None:
         """``command`` on ``trainer`` (on the training thread, between steps, or on an ended trainer); its result or
         its refusal goes to ``future``."""
         try:
-            future.set_result(_apply(command, trainer, self._status.stage))
+            future.set_result(trainer.apply(command))
         except Exception as exc:  # noqa: BLE001  (the caller reads it from the future)
             future.set_exception(exc)
 
@@ -385,7 +394,7 @@ class LiveSession:
                 command = self._commands.get_nowait()
             except queue.Empty:
                 break
-            if command[0] == "call":
+            if isinstance(command, _Call):
                 self._handle(command)
             else:
                 kept.append(command)
@@ -406,7 +415,10 @@ class LiveSession:
 
     def _run(self, stages: list[Stage]) -> None:
         try:
-            self._run_stages(stages)
+            # Stop reaches the long calls of this thread too (loading, scoring, writing the outputs): they check
+            # between their units of work (training/core/stop.py), so a close waits on no whole pass
+            with stop.watching(self._stop.is_set):
+                self._run_stages(stages)
         finally:
             with self._lock:
                 self._building = False
@@ -421,8 +433,8 @@ class LiveSession:
                 command = self._commands.get_nowait()
             except queue.Empty:
                 return
-            if command[0] == "call":
-                command[2].set_exception(RuntimeError("the run ended before this change reached the trainer"))
+            if isinstance(command, _Call):
+                command.future.set_exception(RuntimeError("the run ended before this change reached the trainer"))
 
     def _run_stages(self, stages: list[Stage]) -> None:
         previous = None
@@ -470,8 +482,12 @@ class LiveSession:
                 if not finished or self._stop.is_set():  # a stop during the save: no outputs, no next stage
                     self._set(state="stopped")
                     return
-                if stage.outputs is not None:
-                    self._stage_outputs(stage, trainer, previous)
+                if stage.outputs is not None and not self._stage_outputs(stage, trainer, previous):
+                    self._set(state="stopped")
+                    return
+            except KeyboardInterrupt:  # the stop, seen inside a long call: what there is, saved quickly
+                self._save_stopped(stage, trainer)
+                return
             except Exception as exc:  # one line in the UI; the window and the session go on
                 line = _one_line(exc)
                 self._set(state="error", error=line)
@@ -490,6 +506,23 @@ class LiveSession:
                     self._building = False
         self._set(state="finished" if not self._stop.is_set() else "stopped")
 
+    def _save_stopped(self, stage: Stage, trainer) -> None:
+        """A stop that came inside the stage's build, its step or its final passes: the model as it is (none before
+        the trainer was built), the stage's stop line, the state "stopped"."""
+        if trainer is not None:
+            try:
+                saved = stage.save(trainer, False, lambda: True)
+                if saved is not None:
+                    self._out.put(Saved(str(saved), stage.name))
+                    self.saved.append(Path(str(saved)))
+            except Exception as exc:  # noqa: BLE001  (said; the stop goes on)
+                self._out.put(Failed(f"could not save: {_one_line(exc)}", stage.name))
+        if stage.stopped is not None:
+            line = stage.stopped(trainer)
+            self.notes.append(line)
+            self._out.put(Said(line, stage.name))
+        self._set(state="stopped")
+
     def _take_pending(self, stage: Stage, trainer, pending: dict[str, Any]) -> None:
         """Settings given while the trainer was being built: its first step takes them."""
         for name, value in pending.items():  # each on its own: one the trainer cannot take does not stop the rest
@@ -497,16 +530,20 @@ class LiveSession:
             if refusal:
                 self._out.put(Failed(refusal, stage.name))
 
-    def _stage_outputs(self, stage: Stage, trainer, saved) -> None:
+    def _stage_outputs(self, stage: Stage, trainer, saved) -> bool:
         """A finished stage's further outputs; their failure is one line, and the model saved and the next stage
-        stand."""
+        stand. False when a stop came while they were written (the run ends)."""
         def say(line: str) -> None:
             self._out.put(Said(line, stage.name))
 
         try:
             stage.outputs(trainer, saved, say)
+        except KeyboardInterrupt:  # stopped while writing them: the model stands, and the run ends here
+            say(f"{stage.name}: stopped while writing the report and renders; the model is saved in {saved}")
+            return False
         except Exception as exc:  # noqa: BLE001  (the model is saved; the run goes on)
             self._out.put(Failed(f"{stage.name} outputs: {_one_line(exc)}", stage.name))
+        return True
 
     def _train(self, trainer) -> None:
         while not trainer.done and not self._stop.is_set():
@@ -532,37 +569,13 @@ class LiveSession:
                 self._set(state="paused")
 
 
-def _config_refusal(trainer, changes: dict[str, Any]) -> str | None:
+def _config_refusal(trainer: Trainer, changes: dict[str, Any]) -> str | None:
     """``trainer.update_config(**changes)``; its refusal as one line, None when taken."""
-    update = getattr(trainer, "update_config", None)
-    if update is None:
-        return f"the {trainer.status().stage} stage takes no settings while it runs"
     try:
-        update(**changes)
+        trainer.update_config(**changes)
     except ValueError as exc:
         return str(exc)
     return None
-
-
-def _apply(command: Command, trainer, stage: str) -> Any:
-    """What ``command`` asks of ``trainer``; a ValueError in one line when the trainer cannot do it."""
-    if isinstance(command, UseModel):
-        model = trainer.stylized_gaussians() if hasattr(trainer, "stylized_gaussians") else trainer.export_gaussians()
-        original = getattr(trainer, "original_sh", None)
-        return command.use(model, None if original is None else original.detach().cpu())
-    if isinstance(command, Keep):
-        if not trainer.status().editable:
-            raise ValueError(f"the {stage} stage's model cannot be edited")
-        if trainer.structure_version != command.structure_version:
-            raise ValueError("the trainer changed its Gaussians since the selection was made: select again")
-        return trainer.keep(command.keep)
-    if isinstance(command, SetRegion):
-        if not hasattr(trainer, "set_mask"):
-            raise ValueError(f"the {stage} stage has no region to stylize")
-        if command.mask is not None and len(command.mask) != len(trainer.gaussians):
-            raise ValueError("the selection belongs to another model than the one being stylized")
-        return trainer.set_mask(command.mask)
-    raise TypeError(f"not a command for a trainer: {command!r}")
 
 
 def _one_line(exc: BaseException) -> str:

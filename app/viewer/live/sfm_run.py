@@ -10,9 +10,10 @@ prints. ``snapshot()`` is the sparse points as small round Gaussians (what the v
 (training/core/status.py) holds the phase's progress and the registered photos' cameras (the view's frustums), both
 as the mapper held them at its last registration.
 
-``interrupt()`` (the session's Stop, window close, Ctrl+Q, SIGTERM) stops the run within a fraction of a second
-during feature extraction and matching and at the next registration while mapping; ``run_sfm`` then leaves no
-folder behind, and the step returns without the run being done.
+The session's Stop (window close, Ctrl+Q, SIGTERM) reaches ``run_sfm`` through the stop the session's thread
+watches (training/core/stop.py): within a fraction of a second during feature extraction and matching and at the
+next registration while mapping; ``run_sfm`` then leaves no folder behind and the step ends with StopRequested.
+It takes no settings and no commands while it runs (``update_config`` and ``apply`` refuse them in one line).
 """
 
 from __future__ import annotations
@@ -23,8 +24,8 @@ from pathlib import Path
 
 import numpy as np
 
-from training.core.messages import EventSource, ModelSnapshot
-from training.core.status import TrainerStatus
+from training.core.messages import EventSource, Finished, ModelSnapshot, Noted, Stepped, StructureChanged
+from training.core.status import SfmStatus
 from training.model.sh_constants import SH_C0
 from training.scene.sfm import SfmProgress
 
@@ -44,7 +45,6 @@ class SfmRun(EventSource):
         self.step_count = 0
         self.done = False
         self.result = None  # training.scene.sfm.SfmResult once done
-        self._stop = threading.Event()
         self._lock = threading.Lock()
         self._cameras: tuple = ()
         self._points = np.zeros((0, 3), np.float32)
@@ -56,26 +56,25 @@ class SfmRun(EventSource):
         self._snapshot: ModelSnapshot | None = None
         self._phase: tuple[str, str] = ("", "")  # (phase, attempt) the timing below is of
         self._phase_began = (0.0, 0)  # (time, units done) when it began
-        self._published = TrainerStatus("sfm", 0, 1, "cpu")
+        self._published = SfmStatus("sfm", 0, 1, "cpu")
 
     # ------------------------------------------------------------------ the session's side
-    def interrupt(self) -> None:
-        self._stop.set()
-
     def step(self) -> None:
-        from training.core.messages import Cancelled
+        """The whole run. A stop (the session's, which run_sfm sees through training/core/stop.py) ends it with
+        StopRequested and nothing written."""
         from training.scene.sfm import run_sfm
 
-        try:
-            self.result = run_sfm(self.photos, self.out, log=self._log, progress=False, progress_to=self._progress,
-                                  cancel=self._stop.is_set,
-                                  partial_hint="`splatstyler sfm --allow-partial` keeps such a model",
-                                  **self.config)
-        except Cancelled:
-            return  # stopped: nothing was written, and the session ends the stage
+        self.result = run_sfm(self.photos, self.out, log=self._log, progress=False, progress_to=self._progress,
+                              partial_hint="`splatstyler sfm --allow-partial` keeps such a model", **self.config)
         self.step_count = 1
         self.done = True
-        self.emit("finished", 1)
+        self.emit(Finished, 1)
+
+    def update_config(self, **changes) -> None:
+        raise ValueError("the sfm stage takes no settings while it runs")
+
+    def apply(self, command) -> None:
+        raise ValueError("structure from motion has no model to edit or use yet: wait for the reconstruction")
 
     def snapshot(self) -> ModelSnapshot | None:
         """The sparse points at the last registration read, as Gaussians (None before the first)."""
@@ -87,14 +86,14 @@ class SfmRun(EventSource):
                                                  self._registered)
             return self._snapshot
 
-    def status(self) -> TrainerStatus:
+    def status(self) -> SfmStatus:
         """The current phase's progress, the points so far and the registered cameras; any thread."""
         return self._published
 
     # ------------------------------------------------------------------ run_sfm's side (its thread or COLMAP's)
     def _log(self, line: str) -> None:
         if line.strip():
-            self.emit("info", self.step_count, message=line.strip())
+            self.emit(Noted, self.step_count, message=line.strip())
 
     def _progress(self, p: SfmProgress) -> None:
         now = time.perf_counter()
@@ -114,15 +113,15 @@ class SfmRun(EventSource):
             if grew:
                 self._version += 1
             points = len(self._points)
-            self._published = TrainerStatus("sfm", p.done, p.total, "cpu", points, self._version, self.config,
-                                            cameras=self._cameras)
+            self._published = SfmStatus("sfm", p.done, p.total, "cpu", points, self._version, self.config,
+                                        cameras=self._cameras, points=points)
         metrics = {"total_iters": p.total, "seconds_left": left}
         if p.phase == "mapping":
             metrics.update(registered=p.done, points=points)
         line = p.line() + (f", {points:,} points ({p.attempt})" if p.phase == "mapping" else "")
-        self.emit("step", p.done, metrics, line)
+        self.emit(Stepped, p.done, metrics=metrics, message=line)
         if grew:
-            self.emit("structure", p.done, {"num_gaussians": points})
+            self.emit(StructureChanged, p.done, num_gaussians=points)
 
 
 def phase_time_left(seconds: float) -> str:

@@ -15,6 +15,7 @@ from imgui_bundle import imgui
 from app.viewer.edit import colour_view as cv
 from app.viewer.panels.text_colours import GREY
 from training.model.colour_edit import RANGES
+from training.core.status import StylizeStatus
 
 REGION_LABELS = {"selection": "the selection", "all": "every Gaussian"}
 PARAMETERS = (("brightness", "%.3f"), ("contrast", "%.3f"), ("saturation", "%.3f"), ("hue", "%.1f deg"),
@@ -86,7 +87,7 @@ def strength_section(doc, session, ui, region, usable: bool) -> None:
         imgui.push_text_wrap_pos(0.0)
         imgui.text_colored(GREY, problem)
         imgui.pop_text_wrap_pos()
-    if session.trainer_status("stylize") is None and doc.source is not None:
+    if session.trainer_status(StylizeStatus) is None and doc.source is not None:
         if not state.original_input:
             state.original_input = str(doc.original.ref.path) if doc.original is not None else doc.stylized_from
         _, state.original_input = imgui.input_text("original model", state.original_input)

@@ -11,7 +11,7 @@ from imgui_bundle import imgui
 
 from app.viewer.edit.colour_view import export_baker
 from app.viewer.live.runs import submit_to_trainer
-from app.viewer.live.session import UseModel
+from training.core.trainer import UseModel
 from app.viewer.panels.text_colours import GREY
 from training.model.export import FORMATS, SUFFIXES as SUFFIX
 

@@ -12,6 +12,7 @@ from imgui_bundle import imgui
 from app.viewer.live.runs import set_style_region, stylizing
 from app.viewer.panels.text_colours import GREY
 from app.viewer.state import REGIONS
+from training.core.status import StylizeStatus
 from training.stylize import defaults as D
 from training.stylize.config import RANGES
 
@@ -96,7 +97,7 @@ def style_panel(doc, session, ui) -> None:
         fixed_settings(session, ui, cfg, live)
     # this stage's stylizer's: while the stylization loads, the trainer held is still the stage before's (a
     # reconstruction, or the last run's stylizer)
-    run = session.trainer_status("stylize") if live and status.state != "loading" else None
+    run = session.trainer_status(StylizeStatus) if live and status.state != "loading" else None
     plan = run.utilisation if run is not None else {}
     if "utilisation" in plan:
         imgui.text(f"last plan: utilisation {plan['utilisation']:.3f}, "
@@ -182,7 +183,7 @@ def painting(doc, session, ui) -> float:
     imgui.image(imgui.ImTextureRef(tex.painting.glo), size)
     below = imgui.get_cursor_pos_y()
     ui.window.painting_rect = (int(pos.x), int(pos.y), int(size.x), int(size.y))  # where it is on screen (tests look)
-    run = session.trainer_status("stylize")
+    run = session.trainer_status(StylizeStatus)
     capacity = run.capacity if run is not None else None
     changed, ui.window.show_capacity = imgui.checkbox("capacity map", ui.window.show_capacity)
     imgui.set_item_tooltip("the column mass of the last transport plan at each style feature's place: red to yellow "
