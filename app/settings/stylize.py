@@ -12,10 +12,25 @@ from app.region_flags import add_region_flags, region_from_args
 METRIC_PAIRS = 20
 
 
+def recipe_default(name: str, fmt=lambda v: f"{v:g}" if isinstance(v, float) else str(v)) -> str:
+    """How --help says a recipe-set setting's defaults: "balanced 32; paper 16, from paper.tex 232"."""
+    from training.stylize import defaults as D
+
+    values = "; ".join(f"{r} {fmt(D.RECIPE_SETTINGS[r][name])}" for r in D.RECIPES)
+    return f"{values}, {D.RECIPE_SOURCES[name]}"
+
+
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     from training.stylize import defaults as D
 
     p = parser
+    p.add_argument("--recipe", choices=D.RECIPES, default=D.DEFAULT_RECIPE,
+                   help="the settings to start from: balanced (default), this project's: the content weight steered "
+                        "to hold the scene's structure (--structure-budget), the painting at twice the render's "
+                        "size, the DC colour, a little total variation; paper: the paper's stated objective and "
+                        "settings (CCFT plus the MSE content term at 0.005, K 16, every SH band, no total "
+                        "variation), and where the paper is silent a reference's, named in each flag's help. Flags "
+                        "given change the recipe's values; the report says where")
     p.add_argument("--preset", choices=D.PRESETS, default=None,
                    help=f"paper: the paper's schedule at up to {D.PAPER_MAX_SIDE} px; standard: the same iterations "
                         f"at {D.STANDARD_MAX_SIDE} px; quick: {D.QUICK_MAX_SIDE} px "
@@ -23,7 +38,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         f"where the stylization runs on CUDA, quick on a CPU, where paper takes hours)")
     p.add_argument("--loss", choices=D.LOSSES, default="ccft", help="style loss (default: ccft)")
     p.add_argument("--tau", type=float, default=D.TAU, help=f"CCFT column capacity strength (default {D.TAU})")
-    p.add_argument("--k", type=int, default=D.K, help=f"CCFT nearest style features per rendered feature ({D.K})")
+    p.add_argument("--k", type=int, default=None,
+                   help=f"CCFT nearest style features per rendered feature ({recipe_default('k')})")
     p.add_argument("--epsilon", type=float, default=D.EPSILON, help=f"CCFT entropic regularisation ({D.EPSILON})")
     p.add_argument("--lambda-guide", type=float, default=D.LAMBDA_GUIDE,
                    help=f"cross-view guidance weight ({D.LAMBDA_GUIDE:g})")
@@ -32,32 +48,38 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     p.add_argument("--lambda-style", type=float, default=None,
                    help="style loss weight (default: " + ", ".join(f"{v:g} for {k}" for k, v in D.LAMBDA_STYLE.items())
                         + ")")
-    p.add_argument("--lambda-content", type=float, default=D.LAMBDA_CONTENT,
-                   help=f"content loss weight: how much of the scene's structure the stylization keeps "
-                        f"(default {D.LAMBDA_CONTENT:g}, in the unit of --content-norm)")
-    p.add_argument("--content-norm", choices=D.CONTENT_NORMS, default="relative",
-                   help="the content loss's unit: relative (default): the squared feature error over the content "
-                        "features' energy, the same balance at every size; mse: the mean over channels and "
-                        "positions, ARF's code, where the paper's weight is 0.005")
-    p.add_argument("--content-source", choices=D.CONTENT_SOURCES, default=D.CONTENT_SOURCE,
+    p.add_argument("--lambda-content", type=float, default=None,
+                   help=f"content loss weight, in the unit of --content-norm: how much of the scene's structure "
+                        f"the stylization keeps; under a structure budget, the weight the run starts from "
+                        f"({recipe_default('lambda_content')})")
+    p.add_argument("--structure-budget", type=float, default=None,
+                   help=f"how far the scene's structure may drift (the self-similarity structure distance of each "
+                        f"render's features from its content's): the content weight is steered while the run goes "
+                        f"to hold it, so every painting gets the room the scene allows; 0: a constant weight "
+                        f"({recipe_default('structure_budget')})")
+    p.add_argument("--content-norm", choices=D.CONTENT_NORMS, default=None,
+                   help=f"the content loss's unit: relative: the squared feature error over the content features' "
+                        f"energy, the same balance at every size; mse: the mean over channels and positions, ARF's "
+                        f"code, where the paper's weight is 0.005 ({recipe_default('content_norm')})")
+    p.add_argument("--content-source", choices=D.CONTENT_SOURCES, default=None,
                    help=f"what the content term keeps each view close to: photo, the scene's photos after the "
-                        f"colour transfer (ARF's); render, the input model's render of the view after it (what the "
-                        f"model can show) (default {D.CONTENT_SOURCE})")
-    p.add_argument("--style-scale", type=float, default=D.STYLE_SCALE,
-                   help=f"stroke size: the painting's long side as a multiple of the render's (default "
-                        f"{D.STYLE_SCALE:g}; 1 is ARF's and the paper's, where at small renders the painting's "
-                        f"features are whole motifs)")
+                        f"colour transfer; render, the input model's render of the view after it (what the model "
+                        f"can show) ({recipe_default('content_source')})")
+    p.add_argument("--style-scale", type=float, default=None,
+                   help=f"stroke size: the painting's long side as a multiple of the render's; at 1 and small "
+                        f"renders the painting's features are whole motifs ({recipe_default('style_scale')})")
     p.add_argument("--vgg-precision", choices=D.VGG_PRECISIONS, default=D.VGG_PRECISION,
                    help=f"VGG's arithmetic: float32, bfloat16, or auto (bfloat16 on a CPU that has it natively, "
                         f"AVX512-BF16 or AMX; float32 elsewhere and on CUDA) (default {D.VGG_PRECISION}; the "
                         f"report's vgg_arithmetic says which ran)")
-    p.add_argument("--lambda-tv", type=float, default=D.LAMBDA_TV,
-                   help=f"total-variation weight on the render (default {D.LAMBDA_TV:g})")
+    p.add_argument("--lambda-tv", type=float, default=None,
+                   help=f"total-variation weight on the render ({recipe_default('lambda_tv')})")
     p.add_argument("--lr", type=float, default=None,
-                   help=f"Adam learning rate of the DC colour (default {D.LR})")
-    p.add_argument("--lr-final", type=float, default=D.LR_FINAL,
+                   help=f"Adam learning rate of the DC colour; the higher SH bands learn {1 / D.SHN_LR_FACTOR:g}x "
+                        f"slower ({recipe_default('lr')})")
+    p.add_argument("--lr-final", type=float, default=None,
                    help=f"the learning rate decays exponentially to --lr times this at the last iteration "
-                        f"(default {D.LR_FINAL:g})")
+                        f"({recipe_default('lr_final')})")
     p.add_argument("--iters-per-view", type=int, default=None,
                    help="iterations per view, in all (default: the paper's schedule for the scene kind)")
     p.add_argument("--min-total-iters", type=int, default=None, help="at least this many iterations in all")
@@ -70,10 +92,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     p.add_argument("--seed", type=int, default=0, help="seed of the random view order")
     p.add_argument("--virtual-views", type=int, default=0, metavar="N",
                    help="insert N interpolated cameras between consecutive views (default 0)")
-    p.add_argument("--dc-only", action=argparse.BooleanOptionalAction, default=D.DC_ONLY,
-                   help="optimise only the DC colour, the higher SH orders staying as reconstructed: the painting "
-                        "looks the same from every direction (default; --no-dc-only optimises every band, as the "
-                        "paper does)")
+    p.add_argument("--dc-only", action=argparse.BooleanOptionalAction, default=None,
+                   help=f"optimise only the DC colour, the higher SH orders staying as reconstructed: the painting "
+                        f"looks the same from every direction; --no-dc-only optimises every band "
+                        f"({recipe_default('dc_only', lambda v: 'DC only' if v else 'every band')})")
     p.add_argument("--params", choices=D.PARAMS, default="colour",
                    help="colour: SH colours only, geometry unchanged (default, the paper's method); all: also "
                         "positions, scales, rotations and opacities (the paper's ablation)")
@@ -110,19 +132,18 @@ def stylize_options(args: argparse.Namespace, model) -> dict:
 def config_from_args(args: argparse.Namespace):
     """The StylizeConfig the flags describe, validated (a bad value is one line naming the flag)."""
     from training.core.errors import InputError
-    from training.stylize.config import StylizeConfig
+    from training.stylize import defaults as D
+    from training.stylize.config import recipe_config
 
-    config = StylizeConfig(
-        loss=args.loss, tau=args.tau, k=args.k, epsilon=args.epsilon, lambda_guide=args.lambda_guide,
-        sinkhorn_iters=args.sinkhorn_iters, lambda_style=args.lambda_style, lambda_content=args.lambda_content,
-        content_norm=args.content_norm, content_source=args.content_source, style_scale=args.style_scale,
-        lambda_tv=args.lambda_tv, vgg_precision=args.vgg_precision, lr=args.lr, lr_final=args.lr_final,
+    given = {name: getattr(args, name) for name in D.RECIPE_SETTINGS[args.recipe] if getattr(args, name) is not None}
+    config = recipe_config(
+        args.recipe, loss=args.loss, tau=args.tau, epsilon=args.epsilon, lambda_guide=args.lambda_guide,
+        sinkhorn_iters=args.sinkhorn_iters, lambda_style=args.lambda_style, vgg_precision=args.vgg_precision,
         iters_per_view=args.iters_per_view, min_total_iters=args.min_total_iters,
         scene_kind=args.scene_kind, view_order=args.view_order, schedule=args.schedule, seed=args.seed,
-        virtual_views=args.virtual_views,
-        dc_only=args.dc_only, params=args.params, preset=args.preset or default_preset(args.device, args.backend),
-        max_side=args.max_side,
-        color_transfer=not args.no_color_transfer, backend=args.backend, device=args.device)
+        virtual_views=args.virtual_views, params=args.params,
+        preset=args.preset or default_preset(args.device, args.backend), max_side=args.max_side,
+        color_transfer=not args.no_color_transfer, backend=args.backend, device=args.device, **given)
     try:
         config.validate()
     except ValueError as exc:  # the config names its fields; the user typed flags

@@ -27,6 +27,7 @@ from training.stylize.color_transfer import ColorTransform
 from training.stylize.config import FIXED_AT_START, StylizeConfig
 from training.stylize.optimizer import GEOMETRY
 from training.stylize.plan_readouts import StepAgreement
+from training.stylize.structure_budget import StructureBudget
 
 if TYPE_CHECKING:
     from training.stylize.trainer import Stylizer
@@ -81,6 +82,7 @@ def trainer_state(stylizer: Stylizer) -> dict[str, Any]:
         "guide": None if guide is None else guide.detach().to("cpu"),
         "guide_source": getattr(loss, "guide_source", None),
         "agreements": list(stylizer.agreement.values),
+        "budget": stylizer.budget.state(),
         "history": [dict(h) for h in stylizer.history],
         "last_stats": {k: v for k, v in stylizer.last_stats.items() if isinstance(v, (bool, int, float, str))},
         "finished": stylizer.finished,
@@ -118,6 +120,7 @@ def restore_trainer(stylizer: Stylizer, state: dict[str, Any]) -> None:
             stylizer.style_loss.guide = state["guide"].to(stylizer.device)
             stylizer.style_loss.guide_source = state.get("guide_source")
     stylizer.agreement = StepAgreement([float(a) for a in state.get("agreements", [])])
+    stylizer.budget = StructureBudget.from_state(state.get("budget"))
     if state["optimizer"] is not None and state["dc_only"] == stylizer.config.dc_only:
         stylizer.restart_optimizer()
         saved = [group.get("name") for group in state["optimizer"]["param_groups"]]

@@ -24,7 +24,7 @@ DEFAULT_LR = D.LR
 # device, which parameters the optimiser holds): update_config refuses them rather than ignore them, and a
 # checkpoint's fingerprint holds them (checkpoint.py).
 FIXED_AT_START = ("view_order", "virtual_views", "preset", "device", "color_transfer", "background", "scene_kind",
-                  "max_side", "seed", "params", "schedule", "content_source", "vgg_precision")
+                  "max_side", "seed", "params", "schedule", "content_source", "vgg_precision", "recipe")
 
 
 # The useful span of each numeric setting (low, high, logarithmic): what a live control offers. ``validate`` is
@@ -33,22 +33,25 @@ RANGES: dict[str, tuple[float, float, bool]] = {
     "tau": (0.01, 10.0, True), "epsilon": (0.005, 0.5, True), "lambda_guide": (0.0, 10.0, False),
     "lambda_content": (0.0, 50.0, False), "style_scale": (0.5, 8.0, True), "lambda_tv": (0.0, 100.0, False),
     "lr_final": (0.01, 1.0, True), "lambda_style": (0.0, 100.0, False), "lr": (0.001, 1.0, True),
-    "k": (1, 64, False), "iters_per_view": (0, 100, False), "virtual_views": (0, 4, False)}
+    "k": (1, 64, False), "iters_per_view": (0, 100, False), "virtual_views": (0, 4, False),
+    "structure_budget": (0.0, 0.5, False)}
 
 
 # the fields by kind, each checked by ``validate`` (a None in OPTIONAL means "from the preset / the paper")
 WHOLE_NUMBERS = ("k", "balance_every", "sinkhorn_iters", "iters_per_view", "min_total_iters", "seed", "virtual_views",
                  "max_side")
 NUMBERS = ("tau", "epsilon", "lambda_guide", "lambda_style", "lambda_content", "lr", "style_scale", "lambda_tv",
-           "lr_final")
+           "lr_final", "structure_budget")
 FLAGS = ("dc_only", "color_transfer", "measure_balance")
 OPTIONAL = ("iters_per_view", "min_total_iters", "max_side", "lambda_style", "lr")
 
 
 @dataclass
 class StylizeConfig:
-    """Stylization settings; ``None`` means "from the preset / the paper's schedule"."""
+    """Stylization settings; ``None`` means "from the preset / the paper's schedule". The defaults are the
+    "balanced" recipe's; ``recipe_config`` gives either recipe's (defaults.RECIPE_SETTINGS)."""
 
+    recipe: str = D.DEFAULT_RECIPE  # the recipe the settings started from (recipe_departures: where they differ)
     loss: str = "ccft"  # ccft | nnfm | gram
     tau: float = D.TAU
     k: int = D.K
@@ -56,7 +59,8 @@ class StylizeConfig:
     lambda_guide: float = D.LAMBDA_GUIDE
     sinkhorn_iters: int = D.SINKHORN_ITERS
     lambda_style: float | None = None  # None: DEFAULT_LAMBDA_STYLE[loss] (30 for CCFT)
-    lambda_content: float = D.LAMBDA_CONTENT
+    lambda_content: float = D.LAMBDA_CONTENT  # the content weight (where the structure budget starts it)
+    structure_budget: float = D.STRUCTURE_BUDGET  # the structure drift the content weight holds; 0: a constant weight
     content_norm: str = "relative"  # relative: ||X - X^||^2 / ||X^||^2 | mse: ARF's mean (objective.py)
     content_source: str = D.CONTENT_SOURCE  # photo: the photos (ARF) | render: the input model's renders
     style_scale: float = D.STYLE_SCALE  # the painting's long side / the render's (stroke size)
@@ -99,6 +103,8 @@ class StylizeConfig:
         if (not isinstance(bg, (tuple, list)) or len(bg) != 3
                 or not all(isinstance(c, numbers.Real) and not isinstance(c, bool) and 0 <= c <= 1 for c in bg)):
             raise ValueError(f"background must be 3 numbers in [0, 1], got {bg!r}")
+        if self.recipe not in D.RECIPES:
+            raise ValueError(f"recipe must be one of {', '.join(D.RECIPES)}, got {self.recipe!r}")
         if self.loss not in LOSSES:
             raise ValueError(f"unknown loss {self.loss!r}; expected one of {', '.join(LOSSES)}")
         if self.preset not in PRESETS:
@@ -122,6 +128,7 @@ class StylizeConfig:
                   ("tau", self.tau > 0, "positive"), ("sinkhorn_iters", self.sinkhorn_iters >= 1, "at least 1"),
                   ("balance_every", self.balance_every >= 1, "at least 1"),
                   ("lambda_content", self.lambda_content >= 0, "at least 0"),
+                  ("structure_budget", self.structure_budget >= 0, "at least 0"),
                   ("style_scale", 0 < self.style_scale <= MAX_STYLE_SCALE, f"in (0, {MAX_STYLE_SCALE:g}]"),
                   ("lambda_tv", self.lambda_tv >= 0, "at least 0"),
                   ("lr_final", 0 < self.lr_final <= 1, "in (0, 1]"),
@@ -151,6 +158,28 @@ class StylizeConfig:
         if self.max_side is not None:
             return int(self.max_side)
         return {"quick": QUICK_MAX_SIDE, "standard": STANDARD_MAX_SIDE}.get(self.preset, PAPER_MAX_SIDE)
+
+
+def recipe_config(recipe: str = D.DEFAULT_RECIPE, **changes) -> StylizeConfig:
+    """The settings of ``recipe`` (defaults.RECIPES), with ``changes`` on top; not yet validated."""
+    if recipe not in D.RECIPES:
+        raise ValueError(f"recipe must be one of {', '.join(D.RECIPES)}, got {recipe!r}")
+    return StylizeConfig(**{"recipe": recipe, **D.RECIPE_SETTINGS[recipe], **changes})
+
+
+def recipe_settings(config: StylizeConfig) -> dict[str, dict]:
+    """Every setting the two recipes set differently: {name: {"value": config's, "recipe": its recipe's,
+    <other recipe>: that one's}}, for the report, the help and the Style tab."""
+    out = {}
+    for name in D.RECIPE_SETTINGS[config.recipe]:
+        out[name] = {"value": getattr(config, name), **{r: D.RECIPE_SETTINGS[r][name] for r in D.RECIPES}}
+    return out
+
+
+def recipe_departures(config: StylizeConfig) -> dict[str, tuple]:
+    """The recipe-set settings where ``config`` differs from its own recipe: {name: (recipe's value, config's)}."""
+    own = D.RECIPE_SETTINGS[config.recipe]
+    return {name: (value, getattr(config, name)) for name, value in own.items() if getattr(config, name) != value}
 
 
 def paper_schedule(kind: str, num_views: int) -> tuple[int, int]:

@@ -18,6 +18,7 @@ import numpy as np
 
 from training.core.errors import InputError
 from training.core.version import version
+from training.stylize.config import recipe_departures, recipe_settings
 from training.stylize.trainer import StylizeConfig, Stylizer
 
 SHEET_VIEWS = 4
@@ -54,9 +55,9 @@ def stylize_to_folder(model: Path, data: Path, style: Path, out: Path, config: S
     checkpoint (InputsChanged, exit 2, when it was made from other inputs, unless ``force``: then afresh); the
     checkpoint is removed once the report is written, so one found without ``resume`` is an interrupted run's:
     InputError unless ``overwrite`` (a fresh run would replace it at its first save)."""
-    from training.core.atomic_write import atomic_open, check_output_dir, make_output_dir
+    from training.core import stop
+    from training.core.atomic_write import check_output_dir, make_output_dir
     from training.scene.fingerprint import state_to_resume
-    from training.scene.image_io import write_image
     from training.model.model_io import read_model
     from training.model.ply_io import write_ply
     from training.scene.loader import load_scene
@@ -86,18 +87,21 @@ def stylize_to_folder(model: Path, data: Path, style: Path, out: Path, config: S
     if resume:
         state = state_to_resume(load_stylize_checkpoint(ckpt_path), fingerprint, ckpt_path, force,
                                 lambda line: say(f"stylize: {line}"), warn)
-    scene = load_scene(data, downscale=choose_downscale(data, config.render_max_side))
-    t_loaded = time.perf_counter()
+    with stop.says("before the first iteration; nothing saved" if state is None else
+                   "before the resumed run's first iteration; its checkpoint is as it was"):
+        scene = load_scene(data, downscale=choose_downscale(data, config.render_max_side))
+        t_loaded = time.perf_counter()
 
-    stylizer = Stylizer(gaussians, scene, style_image, config, vgg_weights=vgg_weights, model_name=model, mask=mask)
-    saved = state["pipeline"] if state is not None else {}
-    if "distance_start" in saved:
-        distance_start, distance_pre = saved["distance_start"], saved["distance_pre"]
-    else:  # before the first step (or a checkpoint the viewer wrote: measured before its state is loaded)
-        t0 = time.perf_counter()
-        distance_start = style_distance(stylizer, sh=stylizer.original_sh)
-        distance_pre = style_distance(stylizer) if stylizer.pre_transform is not None else distance_start
-        stylizer.times.add("style_distance", time.perf_counter() - t0)
+        stylizer = Stylizer(gaussians, scene, style_image, config, vgg_weights=vgg_weights, model_name=model,
+                            mask=mask)
+        saved = state["pipeline"] if state is not None else {}
+        if "distance_start" in saved:
+            distance_start, distance_pre = saved["distance_start"], saved["distance_pre"]
+        else:  # before the first step (or a checkpoint the viewer wrote: measured before its state is loaded)
+            t0 = time.perf_counter()
+            distance_start = style_distance(stylizer, sh=stylizer.original_sh)
+            distance_pre = style_distance(stylizer) if stylizer.pre_transform is not None else distance_start
+            stylizer.times.add("style_distance", time.perf_counter() - t0)
     if state is not None:
         stylizer.load_state(state["trainer"])
     earlier = {"stylize_loop": saved.get("stylize_seconds", 0.0), "total": saved.get("total_seconds", 0.0)}
@@ -107,6 +111,8 @@ def stylize_to_folder(model: Path, data: Path, style: Path, out: Path, config: S
         passes = stylizer.pass_progress()[1]
         where = "" if state is None else (f"; resuming from {ckpt_path} at iteration {stylizer.iteration}"
                                           + (", stylization finished" if stylizer.finished else ""))
+        changed = ", ".join(f"{k} {b}" for k, (a, b) in recipe_departures(config).items())
+        log(f"stylize: the {config.recipe} recipe" + (f", changed: {changed}" if changed else ""))
         log(f"stylize: {len(scene.cameras)} views ({stylizer.kind}), {len(stylizer.trajectory)} in the "
               f"trajectory, {stylizer.total_iters} iterations ({config.schedule}: {passes} "
               f"pass{'es' if passes != 1 else ''} along the trajectory) at "
@@ -137,14 +143,39 @@ def stylize_to_folder(model: Path, data: Path, style: Path, out: Path, config: S
             stylize_seconds = loop_seconds()
             stylizer.finish()
             keep()  # before the metrics and the renders, which an interrupt may cut short
-    except KeyboardInterrupt:  # Ctrl-C or SIGTERM: keep what was stylized so far
+    except BaseException as exc:  # Ctrl-C or SIGTERM: keep what was stylized so far
+        if not stop.is_stop(exc):
+            raise
         if stylizer.iteration > start_iteration or state is not None:
             keep()
-            say(f"stylize: stopped at iteration {stylizer.iteration}; the model so far is in "
-                f"{out / 'point_cloud.ply'} (continue with --resume)")
-        raise
+            raise stop.StopRequested(f"at iteration {stylizer.iteration}; the model so far is in "
+                                     f"{out / 'point_cloud.ply'} (continue with --resume)") from None
+        raise stop.StopRequested("before the first iteration; nothing saved") from None
     if stylize_seconds is None:  # resumed after the stylization had finished
         stylize_seconds = earlier["stylize_loop"]
+    try:
+        return _finish(stylizer, scene, style_image, model, data, style, out, metrics, report_extra, fingerprint,
+                       distance_start, distance_pre, stylize_seconds, earlier, state, start_iteration, t_start,
+                       t_loaded)
+    except BaseException as exc:
+        if not stop.is_stop(exc):
+            raise
+        raise stop.StopRequested(f"after the stylization finished, while measuring and rendering; the model is in "
+                                 f"{out / 'point_cloud.ply'} (run again with --resume to write the report and "
+                                 "renders)") from None
+
+
+def _finish(stylizer: Stylizer, scene, style_image, model: Path, data: Path, style: Path, out: Path, metrics,
+            report_extra, fingerprint, distance_start, distance_pre, stylize_seconds: float, earlier: dict, state,
+            start_iteration: int, t_start: float, t_loaded: float) -> dict[str, Any]:
+    """After the stylization (its model and checkpoint kept): the measures, the renders, the sheet and the report;
+    the checkpoint goes once the report is written."""
+    from training.core.atomic_write import atomic_open, make_output_dir
+    from training.scene.image_io import write_image
+    from training.stylize.checkpoint import CHECKPOINT_NAME
+    from training.stylize.style_distance import style_distance
+
+    ckpt_path = out / CHECKPOINT_NAME
     first = stylizer.history[0] if stylizer.history else None
     utilisation = stylizer.utilisation()
     t0 = time.perf_counter()
@@ -177,6 +208,11 @@ def stylize_to_folder(model: Path, data: Path, style: Path, out: Path, config: S
         "splatstyler_version": version(),
         "model": str(model), "data": str(data), "style": str(style), "output": str(out),
         "config": stylizer.config_dict(),
+        # which recipe ran, every setting the two recipes set differently, and where this run left its recipe
+        "recipe": {"name": stylizer.config.recipe, "settings": recipe_settings(stylizer.config),
+                   "changed": {k: {"recipe": a, "used": b}
+                               for k, (a, b) in recipe_departures(stylizer.config).items()}},
+        "structure_budget": structure_budget_summary(stylizer),
         "scene_kind": stylizer.kind,
         "num_views": len(scene.cameras),
         "trajectory_length": len(stylizer.trajectory),
@@ -225,6 +261,18 @@ def stylize_to_folder(model: Path, data: Path, style: Path, out: Path, config: S
         f.write("\n")
     ckpt_path.unlink(missing_ok=True)  # the run is whole: nothing left to resume, and checkpoints are large
     return report
+
+
+def structure_budget_summary(stylizer: Stylizer) -> dict[str, Any] | None:
+    """What the structure budget did (structure_budget.py): the budget, the drift averaged over the last views and
+    the content weight at the end, the range of the weight over the run; None when no step ran."""
+    rows = [h for h in stylizer.history if h.get("content_weight") is not None]
+    if not rows:
+        return None
+    weights = [h["content_weight"] for h in rows]
+    return {"budget": stylizer.config.structure_budget, "drift_end": stylizer.budget.drift,
+            "content_weight_end": weights[-1], "content_weight_min": min(weights),
+            "content_weight_max": max(weights)}
 
 
 def gradient_balance(history: list[dict]) -> dict[str, Any] | None:

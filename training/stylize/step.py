@@ -17,6 +17,7 @@ import torch
 from training.stylize.objective import content_loss, render_gradients, total_variation
 from training.stylize.optimizer import colour_learning_rate
 from training.stylize.plan_readouts import capacity_map
+from training.stylize.structure_budget import structure_drift
 
 if TYPE_CHECKING:
     from training.stylize.trainer import Stylizer
@@ -71,7 +72,8 @@ def gradient_step(st: Stylizer, timer: StepTimer) -> tuple[dict[str, Any], np.nd
     last = getattr(st.style_loss, "last_result", None)
     capacity = capacity_map(last, style.shape[2:])
     content_term = content_loss(feats, content, cfg.content_norm)
-    terms = {"style": cfg.style_weight * style_loss, "content": cfg.lambda_content * content_term}
+    content_weight = cfg.lambda_content * st.budget.scale  # the structure budget's weight (structure_budget.py)
+    terms = {"style": cfg.style_weight * style_loss, "content": content_weight * content_term}
     if cfg.lambda_tv > 0:
         terms["tv"] = cfg.lambda_tv * total_variation(image)
     loss = sum(terms.values())
@@ -84,6 +86,10 @@ def gradient_step(st: Stylizer, timer: StepTimer) -> tuple[dict[str, Any], np.nd
             timer.timings[key[:-2]] = float(value)
 
     timer.start()
+    drift = structure_drift(feats, content)
+    st.budget.update(drift, cfg.structure_budget)
+    timer.stop("structure", sync=False)
+    timer.start()
     grads = render_gradients(image, terms, cfg.measure_balance and st.iteration % cfg.balance_every == 0)
     timer.stop("vgg_backward")
     timer.start()
@@ -94,6 +100,8 @@ def gradient_step(st: Stylizer, timer: StepTimer) -> tuple[dict[str, Any], np.nd
     record = {
         "iteration": st.iteration, "loss": float(loss.detach()), "style_loss": float(style_loss.detach()),
         "content_loss": float(content_term.detach()),
+        # the structure drift of this view's render from its content, and the content weight the step used
+        "structure_drift": drift, "content_weight": content_weight,
         # the norms of the style and content terms' gradients on the render (None: not measured)
         "grad_style": grads.style_norm, "grad_content": grads.content_norm,
         "content_to_style": grads.content_to_style,

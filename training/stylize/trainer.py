@@ -26,7 +26,8 @@ import torch
 
 from training.core.errors import InputError
 from training.core.live_trainer import LiveTrainer
-from training.core.messages import check_cancel
+from training.core import stop
+from training.core.messages import Finished, Stepped, StructureChanged, ViewMoved, check_cancel
 from training.model.gaussians import Gaussians
 from training.raster.rasterize import resolve_device
 from training.scene.scene import Camera, Scene, over_background
@@ -42,6 +43,7 @@ from training.stylize.region import (as_mask, coverage_from_render, indicator_sh
 from training.stylize.scene_match import check_model_matches_scene, check_renders_not_empty
 from training.stylize.style_image import check_style_array
 from training.stylize.status import UTILISATION, stylize_status
+from training.stylize.structure_budget import StructureBudget
 from training.stylize.step import StageTimes, StepTimer, gradient_step
 from training.stylize.stylized_model import StylizedModel
 from training.stylize.view_schedule import ViewSchedule
@@ -78,6 +80,7 @@ class Stylizer(LiveTrainer):
             from training.stylize.vgg_features import load_vgg16_features
 
             vgg = load_vgg16_features(vgg_weights)
+            stop.check()
         self.vgg = vgg.to(self.device)
         self.feature_cache = FeatureCache(self.vgg, self.style_image, self.device,
                                           vgg_in_bfloat16(self.config.vgg_precision, self.device))
@@ -102,6 +105,7 @@ class Stylizer(LiveTrainer):
         t0 = time.perf_counter()
         if check_match:
             check_renders_not_empty(self.render, self.cameras, model_name)
+            stop.check()
         self.pre_transform: ColorTransform | None = None
         self.post_transform: ColorTransform | None = None
         if self.config.color_transfer:
@@ -117,6 +121,7 @@ class Stylizer(LiveTrainer):
         self.optimizer: torch.optim.Optimizer | None = None
         self.optimizer_dc_only: bool | None = None  # the dc_only the optimiser was made for
         self.agreement = StepAgreement()
+        self.budget = StructureBudget()  # the content weight's multiplier (structure_budget.py)
         self.last_stats: dict[str, Any] = {}
         self.history: list[dict[str, float]] = []
         self.finished = False
@@ -210,17 +215,16 @@ class Stylizer(LiveTrainer):
             self.times.add(f"stylize/{key}", value)
         self.last_stats = result
         self.history.append({k: result[k] for k in ("iteration", "loss", "style_loss", "content_loss", "grad_style",
-                                                    "grad_content")})
+                                                    "grad_content", "structure_drift", "content_weight")})
         self.iteration += 1
         moved = self.views.advance(self.config)
         self._publish_status()
-        self.events.emit("step", self.iteration, {**result, "total_iters": self.total_iters})
+        self.events.emit(Stepped, self.iteration, metrics={**result, "total_iters": self.total_iters})
         if moved:
-            self.events.emit("view", self.iteration, {"trajectory_position": self.views.position,
-                                                      "view_index": self.views.current.source_index,
-                                                      "virtual": self.views.current.is_virtual})
+            self.events.emit(ViewMoved, self.iteration, trajectory_position=self.views.position,
+                             view_index=self.views.current.source_index, virtual=self.views.current.is_virtual)
         if self.iteration == self.total_iters:
-            self.events.emit("finished", self.iteration)
+            self.events.emit(Finished, self.iteration)
         return result
 
     def run(self, cancel=None) -> None:
@@ -245,6 +249,18 @@ class Stylizer(LiveTrainer):
         with self._model_lock:
             self.model.mask, self.model.frozen = new, self.gaussians.detached()
             self._model_changed()
+
+    def set_region(self, mask) -> None:
+        """The Viewer's SetRegion: ``set_mask``, refused for a selection made on another model."""
+        if mask is not None and len(mask) != len(self.gaussians):
+            raise ValueError("the selection belongs to another model than the one being stylized")
+        self.set_mask(mask)
+
+    def whole_model(self) -> Gaussians:
+        return self.stylized_gaussians()
+
+    def input_colours(self) -> torch.Tensor:
+        return self.original_sh.detach().cpu()
 
     def _coverage(self, cancel=None) -> list[np.ndarray]:
         """Per view, (H, W) share of each pixel's colour that comes from the selection."""
@@ -277,7 +293,7 @@ class Stylizer(LiveTrainer):
             self._model_changed(geometry=True)
             self._structure_changed()
         self._publish_status()
-        self.events.emit("structure", self.iteration, {"num_gaussians": len(self.gaussians)})
+        self.events.emit(StructureChanged, self.iteration, num_gaussians=len(self.gaussians))
 
     # ------------------------------------------------------------------ after
     def finish(self, cancel=None) -> ColorTransform | None:
