@@ -37,13 +37,14 @@ def parse_background(text: str) -> tuple[float, float, float]:
 def detect_kind(path: Path) -> str:
     """A model file's format by read_model's rule (training/model/model_io.py), "scene" for anything else; a file
     named like a model that is none gets read_model's error."""
-    from training.model.model_io import checked_format, has_model_suffix, model_format
+    from training.model.formats import has_model_suffix
+    from training.model.model_io import checked_format, model_format
 
     fmt = model_format(path)
     if fmt is not None:
         return fmt
     if path.is_file() and has_model_suffix(path):
-        checked_format(path)  # raises the precise "not an SPZ file" error
+        checked_format(path)  # raises the format's own precise error
     return "scene"
 
 

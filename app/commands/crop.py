@@ -1,9 +1,9 @@
 """``splatstyler crop MODEL --box X0,Y0,Z0,X1,Y1,Z1 [--invert] -o OUT.ply``: keep the Gaussians whose centres lie
 in a world-space box (or a sphere), or outside it with ``--invert``; everything else about them is unchanged.
 
-OUT's name picks the format as in ``splatstyler export`` (.ply keeps the model's SH degree and every value bit for
-bit; .compressed.ply, .splat and .spz quantise; .glb keeps float32). MODEL is any model file (.ply,
-.compressed.ply, .splat, .spz, .glb). A box whose first number is negative is written ``--box=-1,...``.
+OUT's name picks the format as in ``splatstyler export`` (a PLY keeps the model's SH degree and every value bit for
+bit; the compressed formats quantise). MODEL is any model file (training/model/formats.py). A box whose first number
+is negative is written ``--box=-1,...``.
 """
 
 from __future__ import annotations
@@ -12,22 +12,24 @@ import argparse
 from pathlib import Path
 
 from app.region_flags import add_region_flags, region_from_args
+from training.model.formats import MODEL_FILE, SUFFIX_LIST
 
 
 def register(sub: argparse._SubParsersAction) -> None:
     parser = sub.add_parser("crop", help="keep the Gaussians inside (or outside) a box or sphere",
                             description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("model", type=Path, metavar="MODEL",
-                        help="model file: .ply, .compressed.ply, .splat, .spz or .glb")
+                        help=MODEL_FILE)
     add_region_flags(parser, "keep", with_mask=False, required=True)
     parser.add_argument("-o", "--output", type=Path, required=True, metavar="OUT",
-                        help="output file: .ply, .compressed.ply, .splat, .spz or .glb (written atomically)")
+                        help=f"output file: {SUFFIX_LIST} (written atomically)")
     parser.set_defaults(func=run)
 
 
 def run(args: argparse.Namespace) -> int:
     from training.core.errors import InputError
-    from training.model.export import SUFFIX_LIST, format_for_path, human_size, write_export
+    from training.model.export import human_size, write_export
+    from training.model.formats import format_for_path
     from training.model.model_io import read_model
 
     fmt = format_for_path(args.output)

@@ -28,6 +28,7 @@ import argparse
 from pathlib import Path
 
 from app.region_flags import add_region_flags, region_from_args
+from training.model.formats import NAMES
 
 
 def axes_arg(value: str) -> str:
@@ -56,7 +57,7 @@ def register(sub: argparse._SubParsersAction) -> None:
                         help="with --project: leave out the Gaussians hidden in the project")
     parser.add_argument("-o", "--output", type=Path, required=True, metavar="OUT",
                         help="output file: .ply, .compressed.ply, .splat, .spz or .glb (written atomically)")
-    parser.add_argument("--format", choices=("ply", "compressed-ply", "splat", "spz", "glb"), default=None,
+    parser.add_argument("--format", choices=NAMES, default=None,
                         help="output format (default: from OUT's name)")
     parser.add_argument("--spz-version", type=int, choices=(3, 4), default=None, metavar="3|4",
                         help="SPZ: 4 (default, the current spec: ZSTD streams) or 3 (one gzip stream, for older "
@@ -100,8 +101,8 @@ def baked_project(path: Path, drop_hidden: bool):
 
 def run(args: argparse.Namespace) -> int:
     from training.core.errors import InputError
-    from training.model.export import (FORMAT_NAMES, SUFFIX_LIST, export_size, format_for_path, human_size,
-                                       max_sh_bands, write_export)
+    from training.model.export import export_size, human_size, max_sh_bands, write_export
+    from training.model.formats import BY_NAME, SUFFIX_LIST, format_for_path
     from training.model.model_io import read_model
 
     fmt = args.format or format_for_path(args.output)
@@ -111,9 +112,9 @@ def run(args: argparse.Namespace) -> int:
     if args.output.is_dir():
         raise InputError(args.output, f"is a folder; give an output file name ending in {SUFFIX_LIST}")
     if args.spz_version is not None and fmt != "spz":
-        raise InputError(None, f"--spz-version applies to SPZ output, not {FORMAT_NAMES[fmt]}")
+        raise InputError(None, f"--spz-version applies to SPZ output, not {BY_NAME[fmt].label}")
     if args.axes is not None and fmt != "spz":
-        raise InputError(None, f"--axes applies to SPZ output ({FORMAT_NAMES[fmt]} has one convention: "
+        raise InputError(None, f"--axes applies to SPZ output ({BY_NAME[fmt].label} has one convention: "
                                "docs/editor.md, \"Axes\")")
     if (args.input is None) == (args.project is None):
         raise InputError(None, "give a model file IN or --project P (one of them)")
@@ -138,7 +139,7 @@ def run(args: argparse.Namespace) -> int:
         raise InputError(None, f"the selection holds none of the model's {len(g)} Gaussians: nothing to export")
     size = export_size(fmt, bands, count, pad_sh=not args.compact_sh)
     what = f"{count} of {len(g)} Gaussians" if mask is not None else f"{count} Gaussians"
-    name = FORMAT_NAMES[fmt] + (f" version {args.spz_version or 4}, {args.axes or 'RDF'} axes" if fmt == "spz"
+    name = BY_NAME[fmt].label + (f" version {args.spz_version or 4}, {args.axes or 'RDF'} axes" if fmt == "spz"
                                 else "")
     sized = ("size known once compressed" if size is None
              else f"{human_size(size)} ({size} bytes, {size / count:.1f} per Gaussian)")

@@ -1,13 +1,13 @@
 """``splatstyler info PATH [--json]``: what a scene folder or a Gaussian model file holds.
 
 A scene (a COLMAP folder, a folder with transforms.json, or the json file itself) is read through the scene loader
-without decoding its images: cameras, image sizes, train/test split, SfM points, normalisation. A model file (.ply,
-.compressed.ply, .splat, .spz, .glb; training/model/model_io.py) is read fully (and so validated): Gaussian count,
+without decoding its images: cameras, image sizes, train/test split, SfM points, normalisation. A model file (any of
+training/model/formats.py, read by training/model/model_io.py) is read fully (and so validated): Gaussian count,
 SH degree, bounds, opacity and scale statistics.
 
-``--json`` prints one object. Its keys always include ``kind`` ("scene" | "ply" | "compressed-ply" | "splat" |
-"spz" | "glb"), ``path``, ``num_cameras``, ``num_points``, ``num_gaussians`` and ``sh_degree``; those that do not
-apply to the kind are null.
+``--json`` prints one object. Its keys always include ``kind`` ("scene", or the model's format name), ``path``,
+``num_cameras``, ``num_points``, ``num_gaussians`` and ``sh_degree``; those that do not apply to the kind are
+null.
 """
 
 from __future__ import annotations
@@ -17,15 +17,15 @@ import json
 from pathlib import Path
 
 from app.render_inputs import detect_kind
+from training.model.formats import SUFFIX_LIST
 
 
 def register(sub: argparse._SubParsersAction) -> None:
     parser = sub.add_parser(
         "info",
-        help="summarise a scene folder or a Gaussian model file (.ply, .compressed.ply, .splat, .spz, .glb)",
-        description="Summarise a scene (COLMAP folder, transforms.json folder or file) or a Gaussian model file "
-                    "(.ply, .compressed.ply, .splat, .spz, .glb). Reading it also validates it: a broken file gives "
-                    "a one-line error.",
+        help=f"summarise a scene folder or a Gaussian model file ({SUFFIX_LIST})",
+        description=f"Summarise a scene (COLMAP folder, transforms.json folder or file) or a Gaussian model file "
+                    f"({SUFFIX_LIST}). Reading it also validates it: a broken file gives a one-line error.",
     )
     parser.add_argument("path", type=Path, help="scene folder, transforms.json, or model file")
     parser.add_argument("--json", action="store_true", help="print one JSON object instead of text")

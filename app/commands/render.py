@@ -11,6 +11,8 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
+from training.model.formats import MODEL_FILE
+
 MODES = ("color", "depth", "alpha", "points", "ellipsoids")
 IMAGE_EXTENSIONS = (".png", ".exr")
 
@@ -23,7 +25,7 @@ def register(sub: argparse._SubParsersAction) -> None:
                     "OpenGL renderer.",
     )
     parser.add_argument("model", type=Path, metavar="MODEL",
-                        help="model file: .ply, .compressed.ply, .splat, .spz or .glb")
+                        help=MODEL_FILE)
     parser.add_argument("--data", type=Path, default=None, help="scene folder whose cameras to use")
     which = parser.add_mutually_exclusive_group(required=True)
     which.add_argument("--camera", default=None, metavar="N",

@@ -15,6 +15,7 @@ import argparse
 from pathlib import Path
 
 from app.commands import add_run_flags
+from training.model.formats import MODEL_FILE
 
 DEFAULT_SIZE = (960, 540)
 
@@ -24,7 +25,7 @@ def register(sub: argparse._SubParsersAction) -> None:
                                           "headless", description=__doc__,
                             formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("model", type=Path, metavar="MODEL",
-                        help="model file: .ply, .compressed.ply, .splat, .spz or .glb")
+                        help=MODEL_FILE)
     which = parser.add_mutually_exclusive_group(required=True)
     which.add_argument("--path", type=Path, default=None, metavar="PATH.json", help="camera path file")
     which.add_argument("--orbit", action="store_true", help="a loop around the model")

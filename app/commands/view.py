@@ -8,7 +8,7 @@ project recording them (project.splatproj). Stop, closing the window, Ctrl+Q or 
 leave no half-made scene folder. File > New from photos... and a folder of photos dropped on the window start the
 same from inside the window, after a dialog of the settings.
 
-Opens a window with the model (a 3DGS PLY, compressed PLY, .splat, .spz or .glb), the dataset's cameras and the
+Opens a window with the model (any model file `export` writes), the dataset's cameras and the
 painting; from its panels a reconstruction or a stylization runs live beside the view, with sliders for the
 stylization's settings. ``--run`` starts one at once. In the Edit panel a gizmo (keys G, T, Y) moves, turns and scales the selection, the
 crop box or one model of the scene; File > Add model (or a model file dropped on the window while a model is open) joins
@@ -28,12 +28,14 @@ from __future__ import annotations
 
 import argparse
 
+from training.model.formats import SUFFIX_LIST
+
 
 def register(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser("view", help="open the live viewer (watch and steer reconstruction and stylization)",
                        description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("model", nargs="?", default="", metavar="MODEL",
-                   help="a Gaussian model (.ply, .compressed.ply, .splat, .spz, .glb), a project (.splatproj) saved "
+                   help=f"a Gaussian model ({SUFFIX_LIST}), a project (.splatproj) saved "
                         "from the viewer, or a folder of photos (no cameras yet): made into a scene in the window, "
                         "then stylized after --style when given")
     p.add_argument("--data", default="", help="the scene (COLMAP folder or transforms.json): cameras, photos")

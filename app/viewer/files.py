@@ -18,7 +18,7 @@ import numpy as np
 
 from app.project import save_project as write_project
 from training.core.errors import InputError
-from training.model.model_io import FILE_DIALOG_PATTERN, has_model_suffix
+from training.model.formats import FILE_DIALOG_PATTERN, SUFFIX_LIST, has_model_suffix
 
 IMAGE_SUFFIXES = (".jpg", ".jpeg", ".png", ".exr", ".tif", ".tiff", ".webp", ".bmp")
 DIALOG_FILTERS = {"model": ["Gaussians", FILE_DIALOG_PATTERN],
@@ -78,7 +78,7 @@ def add_to_scene(doc, session, ui, path: str) -> None:
 
 
 def open_dropped(doc, session, ui, path: str) -> None:
-    """A file or folder dropped on the window: a model file (.ply, .splat, .spz, .glb) opens as the model (or joins
+    """A file or folder dropped on the window: a model file opens as the model (or joins
     the open one), an image as the painting, a folder or transforms.json as the dataset, a .splatproj as the
     project."""
     p = Path(path)
@@ -94,8 +94,8 @@ def open_dropped(doc, session, ui, path: str) -> None:
     elif p.is_dir() or p.name == "transforms.json":
         open_data(doc, session, ui, path)
     else:
-        raise InputError(path, "not a model (.ply, .splat, .spz, .glb), a painting (an image), a dataset (a folder "
-                               "or transforms.json) or a project (.splatproj)")
+        raise InputError(path, f"not a model ({SUFFIX_LIST}), a painting (an image), a dataset (a folder or "
+                               "transforms.json) or a project (.splatproj)")
 
 
 def open_project(doc, session, ui, path: str) -> None:

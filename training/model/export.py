@@ -17,27 +17,12 @@ from pathlib import Path
 import numpy as np
 import torch
 
+from training.model.formats import BY_NAME, NAMES, SUFFIX_LIST, format_for_path
 from training.model.gaussians import Gaussians, num_sh_coeffs
-
-FORMATS = ("ply", "compressed-ply", "splat", "spz", "glb")
-FORMAT_NAMES = {"ply": "PLY", "compressed-ply": "compressed PLY", "splat": ".splat", "spz": "SPZ",
-                "glb": "glTF (.glb, KHR_gaussian_splatting)"}
-SUFFIXES = {"ply": ".ply", "compressed-ply": ".compressed.ply", "splat": ".splat", "spz": ".spz", "glb": ".glb"}
-SUFFIX_LIST = ".ply, .compressed.ply, .splat, .spz or .glb"
-
-
-def format_for_path(path: str | Path) -> str | None:
-    """The format a file name asks for: ``*.compressed.ply`` -> compressed-ply, ``*.ply`` -> ply, ``*.splat``
-    -> splat, ``*.spz`` -> spz, ``*.glb`` -> glb; None for anything else."""
-    name = Path(path).name.lower()
-    if name.endswith(".compressed.ply"):
-        return "compressed-ply"
-    return next((fmt for fmt, suffix in SUFFIXES.items() if name.endswith(suffix)), None)
-
 
 def max_sh_bands(fmt: str) -> int:
     """The most SH bands a format holds (.splat: colour only)."""
-    return 0 if fmt == "splat" else 3
+    return BY_NAME[fmt].max_sh_bands
 
 
 def export_size(fmt: str, sh_bands: int, count: int, pad_sh: bool = True) -> int | None:
@@ -109,36 +94,16 @@ def write_export(path: str | Path, gaussians: Gaussians, fmt: str | None = None,
     if len(g) == 0:
         raise ValueError("the selection is empty: nothing to export")
     g = with_sh_bands(g, bands)
-    order = None
-    if fmt == "ply":
-        from training.model.ply_io import write_ply
-
-        write_ply(path, g, pad_sh=pad_sh)
-    elif fmt == "compressed-ply":
-        from training.model.compressed_ply import write_compressed_ply
-
-        order = write_compressed_ply(path, g)
-    elif fmt == "spz":
-        from training.model.spz_io import LATEST_SPZ_VERSION, SPZ_AXES, write_spz
-
-        write_spz(path, g, version=LATEST_SPZ_VERSION if spz_version is None else spz_version,
-                  axes=SPZ_AXES if spz_axes is None else spz_axes)
-    elif fmt == "glb":
-        from training.model.gltf_io import write_glb
-
-        write_glb(path, g)
-    else:
-        from training.model.splat_io import write_splat
-
-        write_splat(path, g)
+    written = BY_NAME[fmt].write(path, g, pad_sh=pad_sh, spz_version=spz_version, spz_axes=spz_axes)
+    order = written if fmt == "compressed-ply" else None  # the file's order of the Gaussians
     return ExportResult(Path(path), fmt, bands, len(g), Path(path).stat().st_size, order)
 
 
 def _check(fmt: str, sh_bands: int) -> None:
-    if fmt not in FORMATS:
-        raise ValueError(f"unknown format {fmt!r}; expected one of {', '.join(FORMATS)}")
+    if fmt not in BY_NAME:
+        raise ValueError(f"unknown format {fmt!r}; expected one of {', '.join(NAMES)}")
     if not 0 <= sh_bands <= max_sh_bands(fmt):
-        raise ValueError(f"{FORMAT_NAMES[fmt]} holds 0..{max_sh_bands(fmt)} SH bands, not {sh_bands}")
+        raise ValueError(f"{BY_NAME[fmt].label} holds 0..{max_sh_bands(fmt)} SH bands, not {sh_bands}")
 
 
 def human_size(size: int) -> str:

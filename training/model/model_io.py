@@ -34,23 +34,15 @@ import numpy as np
 import torch
 
 from training.core.errors import InputError
+from training.model.formats import BY_NAME, WHAT_MODELS_ARE
 from training.model.gaussians import Gaussians
 
-MODEL_FORMATS = ("ply", "compressed-ply", "splat", "spz", "glb")
 _SNIFF_BYTES = 1 << 16  # enough gzip input to inflate a header's first bytes
-MODEL_SUFFIXES = (".ply", ".splat", ".spz", ".glb")  # .compressed.ply ends in .ply
-FILE_DIALOG_PATTERN = " ".join("*" + s for s in MODEL_SUFFIXES)
-WHAT_MODELS_ARE = "a Gaussian model file (.ply, .compressed.ply, .splat, .spz or .glb)"
 _GZIP = b"\x1f\x8b"
 # The largest log-scale a model may hold: its scale squared (the covariance every renderer builds) and the scale
 # itself (what .splat and .glb store) stay finite in float32. A finite log-scale of 100 was read before, and its
 # .splat or .glb export held an infinite scale that the readers then refused.
 MAX_LOG_SCALE = math.log(float(np.finfo(np.float32).max)) / 2  # 44.36: a scale of 1.8e19
-
-
-def has_model_suffix(path: str | Path) -> bool:
-    """Whether the name is a model file's (what a file dialog or a drop checks before reading)."""
-    return Path(path).suffix.lower() in MODEL_SUFFIXES
 
 
 def model_format(path: str | Path) -> str | None:
@@ -134,22 +126,8 @@ def read_model(path: str | Path, device: str | torch.device = "cpu", spz_axes: s
     for the memory left."""
     path = Path(path)
     fmt = checked_format(path)
-    if fmt == "ply":
-        from training.model.ply_io import read_ply as read
-    elif fmt == "compressed-ply":
-        from training.model.compressed_ply import read_compressed_ply as read
-    elif fmt == "spz":
-        from functools import partial
-
-        from training.model.spz_io import read_spz
-
-        read = partial(read_spz, axes=spz_axes)
-    elif fmt == "glb":
-        from training.model.gltf_io import read_glb as read
-    else:
-        from training.model.splat_io import read_splat as read
     try:
-        gaussians = read(path)
+        gaussians = BY_NAME[fmt].read(path, spz_axes=spz_axes)
     except MemoryError:
         raise InputError(path, "too large for the memory left to read it") from None
     n = len(gaussians)

@@ -13,7 +13,7 @@ from app.viewer.edit.colour_view import export_baker
 from app.viewer.live.runs import submit_to_trainer
 from training.core.trainer import UseModel
 from app.viewer.panels.text_colours import GREY
-from training.model.export import FORMATS, SUFFIXES as SUFFIX
+from training.model.formats import BY_NAME, NAMES
 
 
 def model_to_export(doc):
@@ -37,10 +37,10 @@ def export_section(doc, session, ui) -> None:
         return
     imgui.separator_text("Export")
     st = ui.export
-    changed, i = imgui.combo("format", FORMATS.index(st.format), list(FORMATS))
+    changed, i = imgui.combo("format", NAMES.index(st.format), list(NAMES))
     if changed:
-        st.format = FORMATS[i]
-        st.path = str(Path(st.path).parent / ("export" + SUFFIX[st.format]))
+        st.format = NAMES[i]
+        st.path = str(Path(st.path).parent / ("export" + BY_NAME[st.format].suffix))
     top = max_sh_bands(st.format)
     if top > 0:
         _, st.sh_bands = imgui.slider_int("SH bands kept", min(st.sh_bands, top), 0, top)
