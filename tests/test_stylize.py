@@ -15,7 +15,8 @@ from training.model.gaussian_init import gaussians_from_points
 from training.scene.scene import Scene
 from training.stylize.style_image import MIN_STYLE_SIDE, check_style_array, load_style_image
 from training.stylize.style_distance import style_distance
-from training.stylize.trainer import (StylizeConfig, Stylizer, check_model_matches_scene, paper_schedule, schedule)
+from training.stylize.trainer import (StylizeConfig, Stylizer, check_model_matches_scene, iteration_schedule,
+                                      paper_schedule)
 
 SHARED = Path(__file__).resolve().parents[1].parent / "shared"
 BACKEND = "auto"  # the product path (numba on CPU); the rasterizer tests hold it to the torch reference
@@ -64,14 +65,15 @@ def test_paper_schedule():
     paper = StylizeConfig(k=16, content_norm="mse", lambda_content=0.005, style_scale=1.0, dc_only=False)
     paper.validate()
     assert (paper.k, paper.content_norm, paper.lambda_content) == (16, "mse", 0.005)
-    assert schedule(cfg, "forward", 20) == (50, 2000) and schedule(cfg, "360", 201) == (15, 0)
-    assert schedule(StylizeConfig(preset="quick"), "forward", 20) == (10, 400)
-    assert schedule(StylizeConfig(preset="quick"), "360", 67) == (4, 0)
+    assert iteration_schedule(cfg, "forward", 20) == (50, 2000) and iteration_schedule(cfg, "360", 201) == (15, 0)
+    assert iteration_schedule(StylizeConfig(preset="quick"), "forward", 20) == (10, 400)
+    assert iteration_schedule(StylizeConfig(preset="quick"), "360", 67) == (4, 0)
     standard = StylizeConfig(preset="standard")  # the paper's iterations at a 512 px long side
-    assert schedule(standard, "forward", 20) == (50, 2000) and schedule(standard, "360", 67) == (20, 0)
+    assert iteration_schedule(standard, "forward", 20) == (50, 2000)
+    assert iteration_schedule(standard, "360", 67) == (20, 0)
     assert (standard.render_max_side, StylizeConfig().render_max_side, StylizeConfig(preset="quick").render_max_side,
             StylizeConfig(preset="standard", max_side=300).render_max_side) == (512, 1600, 256, 300)
-    assert schedule(StylizeConfig(iters_per_view=7, min_total_iters=9), "360", 5) == (7, 9)
+    assert iteration_schedule(StylizeConfig(iters_per_view=7, min_total_iters=9), "360", 5) == (7, 9)
 
 
 def test_paper_schedule_sets_the_length_of_a_run(tiny, vgg):

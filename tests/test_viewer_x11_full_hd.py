@@ -24,7 +24,7 @@ from tests.viewer_harness import PRELUDE, ROOT, Xvfb, make_demo_scene, run_gui, 
 pytestmark = [pytest.mark.slow, pytest.mark.skipif(bool(xvfb_missing()), reason=xvfb_missing() or "ok")]
 
 SCREEN = (1920, 1080)
-SLIDERS = ("scene <-> painting", "stroke size", "tau", "epsilon", "lambda_guide", "lambda_style", "learning rate",
+SLIDERS = ("scene <-> painting", "stroke size", "tau", "epsilon", "lambda_guide", "style weight", "learning rate",
            "K", "iterations per view")
 RED = np.array([255, 70, 50])  # the View order panel's current view
 

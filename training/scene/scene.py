@@ -47,10 +47,6 @@ class Scene:
     def num_points(self) -> int:
         return 0 if self.points is None else int(len(self.points))
 
-    def normalize_points(self, xyz: np.ndarray) -> np.ndarray:
-        """World coordinates to normalised scene units: (x - center) / extent (cameras within the unit ball)."""
-        return (np.asarray(xyz) - self.center) / self.extent
-
 
 def llff_split(n: int, holdout: int = LLFF_HOLDOUT) -> tuple[list[int], list[int]]:
     """Every ``holdout``-th view (0, 8, 16, ...) is a test view; with fewer than 2 views, all train."""

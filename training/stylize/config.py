@@ -31,7 +31,7 @@ FIXED_AT_START = ("view_order", "virtual_views", "preset", "device", "color_tran
 # the rule a value must meet; a value outside the span but within the rule (from the CLI) is kept, not clamped.
 RANGES: dict[str, tuple[float, float, bool]] = {
     "tau": (0.01, 10.0, True), "epsilon": (0.005, 0.5, True), "lambda_guide": (0.0, 10.0, False),
-    "lambda_content": (0.0, 50.0, False), "style_scale": (0.5, 8.0, True), "lambda_tv": (0.0, 100.0, False),
+    "lambda_content": (0.05, 50.0, True), "style_scale": (0.5, 8.0, True), "lambda_tv": (0.0, 100.0, False),
     "lr_final": (0.01, 1.0, True), "lambda_style": (0.0, 100.0, False), "lr": (0.001, 1.0, True),
     "k": (1, 64, False), "iters_per_view": (0, 100, False), "virtual_views": (0, 4, False),
     "structure_budget": (0.0, 0.5, False)}
@@ -189,7 +189,7 @@ def paper_schedule(kind: str, num_views: int) -> tuple[int, int]:
     return (ORBIT_ITERS_PER_VIEW if num_views <= ORBIT_MANY_VIEWS else ORBIT_ITERS_PER_VIEW_MANY), 0
 
 
-def schedule(config: StylizeConfig, kind: str, num_views: int) -> tuple[int, int]:
+def iteration_schedule(config: StylizeConfig, kind: str, num_views: int) -> tuple[int, int]:
     """(iterations per view, minimum total) after the preset and the config's overrides."""
     per_view, min_total = paper_schedule(kind, num_views)
     if config.preset == "quick":

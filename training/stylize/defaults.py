@@ -88,8 +88,8 @@ VIEW_ORDERS = ("dataset", "nearest", "random")
 # for viewpoint v is the weighted projection of the rendered features from viewpoint v-1 (i.e., the viewpoint of
 # previous iteration)"); the iterations per view (supplementary: "50 iterations per view with a minimum constraint
 # of 2,000 total iterations") set the total, spread over passes along the trajectory, as ARF's loop draws a new view
-# at every step. "block": each view for ``iters_per_view`` consecutive iterations, then the next (this project's
-# schedule before issue 28: the guide then comes from the same view in all but one iteration of each block).
+# at every step. "block": each view for ``iters_per_view`` consecutive iterations, then the next (the guide then
+# comes from the same view in all but one iteration of each block).
 SCHEDULES = ("interleaved", "block")
 SCENE_KINDS = ("auto", "forward", "360")
 

@@ -33,7 +33,7 @@ from training.raster.rasterize import resolve_device
 from training.scene.scene import Camera, Scene, over_background
 from training.stylize.color_transfer import ColorTransform
 from training.stylize.config import (DEFAULT_LAMBDA_STYLE, DEFAULT_LR, FIXED_AT_START,  # noqa: F401  (re-exported)
-                                     StylizeConfig, paper_schedule, render_camera, schedule)
+                                     StylizeConfig, iteration_schedule, paper_schedule, render_camera)
 from training.stylize.feature_cache import FeatureCache, vgg_in_bfloat16
 from training.stylize.optimizer import (colour_learning_rate, geometry_learning_rates, make_optimizer,
                                         set_colour_learning_rate)

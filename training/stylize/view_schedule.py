@@ -14,7 +14,7 @@ import math
 from dataclasses import dataclass
 
 from training.scene.scene import Camera
-from training.stylize.config import StylizeConfig, schedule
+from training.stylize.config import StylizeConfig, iteration_schedule
 from training.stylize.view_order import scene_kind, view_order
 from training.stylize.virtual_views import ViewItem, trajectory
 
@@ -43,11 +43,11 @@ class ViewSchedule:
         return self.trajectory[self.position]
 
     def iters_per_view(self, config: StylizeConfig) -> int:
-        return schedule(config, self.kind, self.num_cameras)[0]
+        return iteration_schedule(config, self.kind, self.num_cameras)[0]
 
     def total_iters(self, config: StylizeConfig) -> int:
         """Iterations of the whole schedule: every trajectory view ``iters_per_view`` times, at least the minimum."""
-        per_view, min_total = schedule(config, self.kind, self.num_cameras)
+        per_view, min_total = iteration_schedule(config, self.kind, self.num_cameras)
         return max(per_view * len(self.trajectory), min_total)
 
     def iters_per_pass(self, config: StylizeConfig) -> int:

@@ -21,9 +21,6 @@ RESTART = "fixed while a stylization runs: it shapes the run from its first step
 # The painting gives way to the settings below it (all in view without scrolling, 1920x1080 included) down to this
 # many text lines high.
 MIN_PAINTING_LINES = 6
-# The content weights the scene <-> painting control spans (relative unit, training/stylize/objective.py): at the
-# left end the content term's gradient is several times the style term's, at the right a hundredth of it
-BALANCE_SPAN = (0.05, 50.0)
 
 
 def set_stylize(session, ui, **changes) -> None:
@@ -71,7 +68,7 @@ def style_panel(doc, session, ui) -> None:
                            "painting's moons and trees whole")
     # (label, config field, its current value): the spans come with the config (RANGES)
     floats = [("tau", "tau", cfg.tau), ("epsilon", "epsilon", cfg.epsilon), ("lambda_guide", "lambda_guide",
-              cfg.lambda_guide), ("lambda_style", "lambda_style", cfg.style_weight),
+              cfg.lambda_guide), ("style weight", "lambda_style", cfg.style_weight),
               ("learning rate", "lr", cfg.learning_rate)]
     for label, name, value in floats:
         lo, hi, log = RANGES[name]
@@ -112,7 +109,7 @@ def style_panel(doc, session, ui) -> None:
 def balance_slider(session, ui, cfg) -> None:
     """Scene <-> painting: the content weight on a logarithmic scale, the scene at the left end (the largest weight),
     the painting at the right; the value shown is the weight itself."""
-    lo, hi = BALANCE_SPAN
+    lo, hi, _ = RANGES["lambda_content"]  # the span where each end leads: content, style
     weight = min(max(float(cfg.lambda_content), lo), hi)
     toward_painting = math.log(hi / weight) / math.log(hi / lo)
     changed, toward_painting = imgui.slider_float("scene <-> painting", toward_painting, 0.0, 1.0,
