@@ -3,7 +3,7 @@
 A capture reconstructed from photos has no known scale and whatever up axis its structure-from-motion picked. The
 viewer's measure tool sets the scale from one known length (two picked points), and its up tool turns the scene so
 that a picked floor, or the dataset cameras' mean up, points to the viewer's up: -y, the OpenCV/COLMAP frame the
-whole project uses (``camera_control.py``: a photo's up is its -y axis). Both compose into one 4x4 similarity
+whole project uses (``app/viewer/camera.py``: a photo's up is its -y axis). Both compose into one 4x4 similarity
 ``x -> s R x + t``, the project's ``world`` (app/project.py), applied to the model's Gaussians
 (training/model/transform.py) and to the dataset cameras, so the photos still line up with the model.
 

@@ -74,7 +74,7 @@ def test_frame_breakdown_of_the_cuda_path_and_its_table():
     """The CUDA display path's frame breakdown, run on CPU tensors (the torch backend: the same code), and the table
     bench gpu writes of it; interop cannot run without CUDA, and the table says why."""
     from app.bench.cuda_frame import STAGES, frame_breakdown
-    from app.viewer.display.camera_control import ViewerCamera
+    from app.viewer.camera import ViewerCamera
     from renderer_gl import create_context
     from tests.test_display_path import snapshot
 

@@ -11,7 +11,7 @@ from dataclasses import replace
 import numpy as np
 import pytest
 
-from app.viewer.display.camera_control import ViewerCamera
+from app.viewer.camera import ViewerCamera
 from app.viewer.display.choice import (Candidate, DisplayChoice, choose_display_path, cuda_candidate,
                                      default_candidates, gl_candidate, pick)
 from app.viewer.display.cuda import CudaDisplay, unsupported

@@ -227,7 +227,7 @@ def test_a_second_model_moved_by_the_gizmo_exports_and_bakes_as_one_model(demo_s
     second = moved_copy(model, similarity(30.0, (0, 1, 0), 0.6, (16.0, 0.0, 2.0)), tmp_path / "second.ply")
     project = tmp_path / "scene.splatproj"
     found = run_gui(PRELUDE + DRAG + f"""
-from app.viewer.display.camera_control import ViewerCamera
+from app.viewer.camera import ViewerCamera
 app = ViewerApp(Paths(model={str(model)!r}, out=str(OUT / "out")))
 
 def test(ctx):
@@ -354,7 +354,7 @@ def test_three_point_alignment_puts_a_moved_copy_back(demo_scene, tmp_path):
     known = similarity(12.0, (0.2, 1.0, 0.1), 0.85, (17.0, 1.0, 1.5))
     copy = moved_copy(model, known, tmp_path / "copy.ply")
     found = run_gui(PRELUDE + DRAG + f"""
-from app.viewer.display.camera_control import ViewerCamera
+from app.viewer.camera import ViewerCamera
 app = ViewerApp(Paths(model={str(model)!r}, out=str(OUT / "out")))
 known = np.array({known.tolist()!r})
 
@@ -474,7 +474,7 @@ def test_moves_under_a_scaled_and_turned_world_are_moves_in_the_view(demo_scene,
     second = moved_copy(model, similarity(0.0, (0, 1, 0), 1.0, (15.0, 0.0, 0.0)), tmp_path / "second.ply")
     world = similarity(30.0, (0, 1, 0), 2.0, (1.0, -2.0, 3.0))
     found = run_gui(PRELUDE + DRAG + f"""
-from app.viewer.display.camera_control import ViewerCamera
+from app.viewer.camera import ViewerCamera
 from app.viewer.edit.world_edit import set_world
 app = ViewerApp(Paths(model={str(model)!r}, out=str(OUT / "out")))
 

@@ -25,7 +25,7 @@ def test_x11_two_models_on_screen_and_the_gizmo_on_selection_box_and_model(demo_
 import pickle
 from imgui_bundle import imgui
 from app.viewer.display import gestures
-from app.viewer.display.camera_control import ViewerCamera
+from app.viewer.camera import ViewerCamera
 from app.viewer.edit.editor import in_box
 from training.scene.image_io import write_image
 app = ViewerApp(Paths(model={str(model)!r}, out=str(OUT / "out")))

@@ -11,7 +11,7 @@ import torch
 from app.camera_path import keyframe_from
 from app.project import save_project
 from app.viewer.app import ViewerApp
-from app.viewer.display.camera_control import ViewerCamera
+from app.viewer.camera import ViewerCamera
 from app.viewer.files import open_model, open_project
 from app.viewer.files import save_project as save_session
 from app.viewer.state import Paths

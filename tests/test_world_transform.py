@@ -38,7 +38,7 @@ def similarity(scale=2.5, q=(0.3, 0.5, -0.2, 0.7), t=(1.0, 2.0, -3.0)) -> np.nda
 
 
 def camera(position, target, up=(0.0, -1.0, 0.0)) -> Camera:
-    from app.viewer.display.camera_control import ViewerCamera
+    from app.viewer.camera import ViewerCamera
 
     return ViewerCamera.looking_at(position, target, up=up).camera(64, 48)
 

@@ -107,7 +107,7 @@ def _snapshot_and_camera(scene, w: int, h: int):
     orbiting the middle of the scene's box."""
     import numpy as np
 
-    from app.viewer.display.camera_control import ViewerCamera
+    from app.viewer.camera import ViewerCamera
     from training.core.messages import ModelSnapshot
 
     means, quats, scales, opac, sh = (t.numpy() for t in scene[:5])

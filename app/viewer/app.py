@@ -18,7 +18,7 @@ from pathlib import Path
 import numpy as np
 
 from app.viewer import files
-from app.viewer.display.camera_control import ViewerCamera, camera_span
+from app.viewer.camera import ViewerCamera, camera_span
 from app.viewer.display.gizmo import gizmo_keys, sync_crop_box
 from app.viewer.display.path_video import step_video
 from app.viewer.display.view3d import View3D

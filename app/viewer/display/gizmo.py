@@ -220,7 +220,8 @@ def _align_clicks(doc, session, ui, hovered: bool) -> None:
     if hovered and imgui.is_mouse_clicked(imgui.MouseButton_.left):
         mouse = imgui.get_mouse_pos()
         fid = int(st.target.split(":")[1]) if st.target.startswith("model:") else 1
-        line = ui.messages.guarded("pick", add_pick, doc, session, ui, *pixels(ui, mouse.x, mouse.y), fid)
+        line = ui.messages.guarded("pick", add_pick, doc, session, ui, view_camera(ui), *pixels(ui, mouse.x, mouse.y),
+                                   fid)
         if line:
             ui.messages.say(line)
     pts = [(p, (255, 120, 60)) for p in st.align.moving] + [(p, (90, 255, 120)) for p in st.align.fixed]

@@ -14,7 +14,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from app.viewer.display.camera_control import ViewerCamera, nearest_camera
+from app.viewer.camera import ViewerCamera, nearest_camera
 from renderer_gl import gl_direct
 
 MODES = ("color", "depth", "alpha", "points", "ellipsoids")

@@ -11,7 +11,6 @@ from __future__ import annotations
 
 import numpy as np
 
-from app.viewer.display.gestures import view_camera
 from app.viewer.edit.world_edit import pick
 
 PAIRS = 3
@@ -41,11 +40,11 @@ def similarity_from_pairs(src, dst) -> np.ndarray:
     return m
 
 
-def add_pick(doc, session, ui, x: float, y: float, fid: int) -> str:
-    """A click while aligning: the next point of the pair (moving, then fixed); the third pair moves model ``fid``.
-    Returns the line for the user."""
+def add_pick(doc, session, ui, camera, x: float, y: float, fid: int) -> str:
+    """A click at (x, y) of the picture ``camera`` shows while aligning: the next point of the pair (moving, then
+    fixed); the third pair moves model ``fid``. Returns the line for the user."""
     st = ui.gizmo.align
-    point = pick(ui, view_camera(ui), x, y)
+    point = pick(ui, camera, x, y)
     if point is None:
         return ""  # pick said why
     (st.moving if st.next_is_moving() else st.fixed).append(point)

@@ -16,7 +16,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from app.viewer.display.camera_control import ViewerCamera
+from app.viewer.camera import ViewerCamera
 from app.world_transform import VIEWER_UP, cameras_up, compose, level, plane_normal, scale_about
 
 PICK_TOOLS = ("measure", "floor", "fit")  # two points to measure; three floor points; one point to fit around

@@ -10,7 +10,7 @@ from __future__ import annotations
 from imgui_bundle import imgui
 
 from app.viewer.display import gizmo
-from app.viewer.display.camera_control import camera_span
+from app.viewer.camera import camera_span
 from app.viewer.display.gestures import handle_gesture, handle_pick
 
 VIEW_WINDOW = "3D view"
