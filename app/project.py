@@ -135,6 +135,9 @@ class Project:
     up: np.ndarray = field(default_factory=lambda: np.array([0.0, -1.0, 0.0]))
     world: np.ndarray = field(default_factory=lambda: np.eye(4))  # similarity: up axis and scale
     source: Path | None = None  # the file it was opened from (where embedded models are read)
+    # copies of embedded models by member name (the viewer's, made when it opened them): what a save writes, so that
+    # a project whose file has moved or gone since it was opened can still be saved
+    copies: dict[str, Path] = field(default_factory=dict)
 
     def stylize_config(self):
         """The stylization settings as a StylizeConfig (validated when the project was opened)."""
@@ -222,15 +225,16 @@ def save_project(path: str | Path, project: Project, embed: bool = False) -> Pat
         if r is None:
             return None
         out = {"path": _relative(r.path, folder), "abs_path": str(Path(r.path).absolute())}
+        embedded_before = r.embedded is not None and (project.source is not None or r.embedded in project.copies)
         if hash_it:
-            if r.sha256 is not None or (r.embedded is not None and project.source is not None):
+            if r.sha256 is not None or embedded_before:
                 # the hash of the file the edits were made on (taken when it was opened): a file changed since
                 # stays flagged, and a missing one is recognised when it is back
                 out["sha256"] = r.sha256
             elif Path(r.path).is_file():
                 out["sha256"] = file_sha256(r.path)
             member = None
-            if r.embedded is not None and project.source is not None:
+            if embedded_before:
                 # the member keeps its name: what the viewer noted of it still names it in the file written
                 member = r.embedded
                 embedded[member] = ("zip", r.embedded)
@@ -285,8 +289,15 @@ def save_project(path: str | Path, project: Project, embed: bool = False) -> Pat
                 z.writestr(member, buf.getvalue())
             for member, (kind, src) in embedded.items():
                 # models are stored, not deflated: PLY floats barely compress and are large
+                copy = project.copies.get(src) if kind == "zip" else None
                 if kind == "file":
                     z.write(src, member, compress_type=zipfile.ZIP_STORED)
+                elif copy is not None and Path(copy).is_file():
+                    # the copy the edits were made on, whether or not the project file is still where it was
+                    z.write(copy, member, compress_type=zipfile.ZIP_STORED)
+                elif project.source is None:
+                    raise InputError(copy, f"embedded model {src} cannot be saved: the viewer's copy of it is gone "
+                                           "and there is no project file to read it from")
                 else:  # streamed from the project it was opened from: a model may be larger than the memory
                     info = zipfile.ZipInfo(member)
                     info.compress_type = zipfile.ZIP_STORED
