@@ -62,6 +62,7 @@ import numpy as np
 from app.camera_path import CameraPath
 from training.core.atomic_write import atomic_path
 from training.core.errors import InputError
+from training.core.json_numbers import NumberOutOfRange, parse_json
 from training.core.npy_io import read_npy
 from training.model.colour_edit import ColourAdjustment, ColourEdits
 from training.scene.camera import Camera
@@ -73,10 +74,12 @@ MANIFEST = "project.json"
 # version n -> a function giving the version n+1 manifest; a new version adds its step here
 MIGRATIONS: dict[int, Callable[[dict], dict]] = {}
 _HASH_CHUNK = 1 << 20
-# what a member may inflate to: a manifest is settings and keyframes (kilobytes); an array has a row per Gaussian,
-# and no scene has 100 million of them. Checked before a member is inflated (a zip bomb is refused unread); zipfile
-# itself stops a member at the size its header declares.
-MAX_MANIFEST_BYTES = 64 << 20
+# what a member may inflate to: a manifest is settings and keyframes (kilobytes: 4 MiB holds thousands of keyframes);
+# an array has a row per Gaussian, and no scene has 100 million of them. Checked before a member is inflated (a zip
+# bomb is refused unread); zipfile itself stops a member at the size its header declares. The manifest's bound is
+# also what parsing it may cost: JSON of nothing but "{}," becomes 25 times its size in Python objects (4 MiB: about
+# 120 MB; the 64 MiB allowed before took 1.9 GB)
+MAX_MANIFEST_BYTES = 4 << 20
 MAX_ARRAY_ROWS = 100_000_000
 # what the arrays of one project inflate to together, each member once however often the manifest names it: a
 # 10-million-Gaussian model's row list (80 MB), selection and hidden flags and 40 colour regions fit; a few kB of
@@ -86,6 +89,9 @@ MAX_ARRAY_BYTES = 512 << 20
 # a deflated PLY, its zero SH padding included, stays under 5:1), or to EMBED_FREE_BYTES whatever its ratio
 MAX_EMBED_RATIO = 20
 EMBED_FREE_BYTES = 1 << 20
+# how a member may be stored: what zipfile inflates (PPMd, for one, it cannot), never encrypted
+READABLE_COMPRESSION = {zipfile.ZIP_STORED: "stored", zipfile.ZIP_DEFLATED: "deflate", zipfile.ZIP_BZIP2: "bzip2",
+                        zipfile.ZIP_LZMA: "lzma"}
 # what reading a damaged member raises: a checksum or deflate error, a member cut short
 _ZIP_ERRORS = (zipfile.BadZipFile, zlib.error, EOFError, OSError, ValueError)
 
@@ -343,6 +349,7 @@ def open_project(path: str | Path, check_hashes: bool = True) -> tuple[Project, 
             info = z.getinfo(MANIFEST)
         except KeyError:
             raise InputError(path, f"not a splatstyler project (no {MANIFEST} inside)") from None
+        check_members(z, path)
         if info.file_size > MAX_MANIFEST_BYTES:
             raise InputError(path, f"{MANIFEST} would inflate to {info.file_size:,} bytes; a project's is at most "
                                    f"{MAX_MANIFEST_BYTES:,}")
@@ -351,7 +358,9 @@ def open_project(path: str | Path, check_hashes: bool = True) -> tuple[Project, 
         except _ZIP_ERRORS as exc:
             raise InputError(path, f"{MANIFEST} cannot be read ({_first_line(exc)})") from None
         try:
-            data = json.loads(raw)
+            data = parse_json(raw)
+        except NumberOutOfRange as exc:
+            raise InputError(path, f"{MANIFEST} {exc}") from None
         except (ValueError, UnicodeDecodeError) as exc:
             raise InputError(path, f"{MANIFEST} is not valid JSON ({str(exc).splitlines()[0]})") from None
         except RecursionError:
@@ -360,6 +369,17 @@ def open_project(path: str | Path, check_hashes: bool = True) -> tuple[Project, 
         project = reader.project(upgrade(data, path))
     project.source = path
     return project, reader.problems
+
+
+def check_members(z: zipfile.ZipFile, path: Path) -> None:
+    """Every member is one this reader can inflate: not encrypted, and compressed in a way zipfile knows (a project
+    from another zip tool may use PPMd); else one line naming the member, before anything is read."""
+    for info in z.infolist():
+        if info.flag_bits & 0x1:
+            raise InputError(path, f"member {info.filename} is encrypted; a project's members are not")
+        if info.compress_type not in READABLE_COMPRESSION:
+            raise InputError(path, f"member {info.filename} is compressed with method {info.compress_type}, which "
+                                   f"this reader cannot inflate ({', '.join(READABLE_COMPRESSION.values())})")
 
 
 def upgrade(data, name) -> dict:
