@@ -289,6 +289,7 @@ class ViewerApp:
                     ui.messages.say(item.message)
         runs.finish_pending(ui)
         ui.messages.guarded("photos", photos.end_when_done, doc, session, ui)
+        runs.give_back_unused(session, ui)
         watch_style_tab(ui)
         if doc.cameras and view.settings.show_frustums and self._cameras_at_view() != self._frustums_hidden:
             self.update_overlays()  # the view came near cameras, or left them

@@ -172,6 +172,7 @@ class TrainingState:
     pause_at: int = 0
     base_model: str = ""  # the model as opened or reconstructed: what a stylization starts from
     runs: list[Path] = field(default_factory=list)  # each stylization's saved model, in order
+    claimed: list[Path] = field(default_factory=list)  # the run folders the last run made as it started (runs.py)
     continue_last_run: bool = False
     pending: list = field(default_factory=list)  # (what, Future, on done) handed to the running trainer
     shown_step: int | None = None  # the trainer step whose model the view shows
