@@ -215,14 +215,18 @@ def file_sha256(path: str | Path) -> str:
 
 
 # --------------------------------------------------------------------------------------------- saving
+def with_suffix(path: str | Path) -> Path:
+    """``path`` as a project file's name: ``.splatproj`` added when it lacks it."""
+    path = Path(path)
+    return path if path.suffix == SUFFIX else path.with_name(path.name + SUFFIX)
+
+
 def save_project(path: str | Path, project: Project, embed: bool = False) -> Path:
     """Write ``project`` to ``path`` (``.splatproj`` added when missing) atomically. Each model's hash is the one
     its reference carries (taken when the file was opened: the edits refer to those rows, so a file rewritten
     since is flagged when the project opens), else the file's as it is now; ``embed`` copies the model files into
     the project (models already embedded stay embedded, under the same member name). Returns the path written."""
-    path = Path(path)
-    if path.suffix != SUFFIX:
-        path = path.with_name(path.name + SUFFIX)
+    path = with_suffix(path)
     folder = path.absolute().parent
     arrays: dict[str, np.ndarray] = {}
     embedded: dict[str, tuple[str, object]] = {}  # member -> ("file", path) | ("zip", member in the source)

@@ -208,6 +208,16 @@ class ProjectState:
 
 
 @dataclass
+class Question:
+    """A question the window asks before it goes on (layout.py draws it as a modal): ``title`` (the modal's name),
+    ``text``, and the answers in order, each a button label and what it does (None: nothing, the question goes)."""
+
+    title: str
+    text: str
+    answers: list[tuple[str, Any]] = field(default_factory=list)
+
+
+@dataclass
 class StyleTextures:
     """The Style panel's GL textures: the painting (made once per painting) and the live capacity map."""
 
@@ -256,6 +266,7 @@ class WindowState:
     style_covers: str = ""
     style_settings_h: float = 0.0  # the Style panel's height below the painting, last frame (the painting yields)
     fixed_folded: bool = False  # the Style panel's "Fixed at the start" was last folded for a run (opened after)
+    title: str = "splatstyler"  # the window's title as last set ("*" at its end while edits are unsaved)
 
 
 @dataclass
@@ -278,6 +289,7 @@ class Ui:
     window: WindowState = field(default_factory=WindowState)
     textures: StyleTextures = field(default_factory=StyleTextures)
     requests: ViewRequests = field(default_factory=ViewRequests)
+    questions: list[Question] = field(default_factory=list)  # asked one at a time, the first shown
     view: Any = None  # view3d.View3D
 
     def out_dir(self) -> Path:

@@ -77,10 +77,7 @@ def choose_photos_folder(ui) -> None:
 def start_photos(doc, session, ui) -> None:
     """Start the photos pipeline with the dialog's settings (ui.photos, and the Training panel's preset, iterations
     and downscale): a new scene, the three stages in the live session."""
-    from app.settings import sfm as sfm_settings
-    from app.stage_outputs import StageOutputs
-    from app.viewer.live.runs import claimed_for, settings_now
-    from app.viewer.live.stages import reconstruct_stage, sfm_stage, stylize_stage
+    from app.viewer.files import unless_unsaved
     from training.scene.sfm import CAMERA_MODELS, list_photos
 
     p, t = ui.photos, ui.training
@@ -103,7 +100,18 @@ def start_photos(doc, session, ui) -> None:
         doc.open_painting(p.painting)  # a bad painting stops here, before minutes of work
         ui.paths.style = p.painting
     painting = doc.painting.path if p.painting else None
+    unless_unsaved(doc, session, ui, "starting a new scene from photos",
+                   lambda: _begin_photos(doc, session, ui, folder, count, painting))
 
+
+def _begin_photos(doc, session, ui, folder: Path, count: int, painting: str | None) -> None:
+    """The pipeline started (the photos and painting checked): its folders claimed, a new scene, the stages."""
+    from app.settings import sfm as sfm_settings
+    from app.stage_outputs import StageOutputs
+    from app.viewer.live.runs import claimed_for, settings_now
+    from app.viewer.live.stages import reconstruct_stage, sfm_stage, stylize_stage
+
+    p, t = ui.photos, ui.training
     out = ui.out_dir()
     folders = {"scene": claimed_for(ui, out, "scene"), "reconstruction": claimed_for(ui, out, "reconstruction")}
     if painting:
@@ -168,7 +176,8 @@ def photos_run_ended(doc, session, ui, state: str) -> None:
     recon = Path(p.folders["reconstruction"]) / "point_cloud.ply"
     stylized = Path(p.folders["stylized"]) / "point_cloud.ply" if "stylized" in p.folders else None
     final = stylized if stylized is not None else recon
-    open_model(doc, session, ui, str(final))
+    # the scene the user started from the photos: what was edited meanwhile (keyframes) goes into its project
+    open_model(doc, session, ui, str(final), ask=False)
     if stylized is not None:
         doc.pair_original(recon)  # the Colour panel's style strength, and the project's record of the original
     written = save_project(doc, session, ui)
