@@ -218,13 +218,22 @@ def glb_file(edit=None, text_edit=None, count: int = 10) -> Callable:
     return make
 
 
-def accessor_type(attribute: str, kind: str) -> Callable:
-    """The attribute's accessor declared as ``kind`` (its view keeps its bytes: the file is otherwise whole)."""
-    def edit(doc: dict) -> None:
-        index = doc["meshes"][0]["primitives"][0]["attributes"][attribute]
-        doc["accessors"][index]["type"] = kind
+def accessor_type(attribute: str, kind: str, count: int = 10) -> Callable:
+    """The attribute's accessor of type ``kind``, with a view of its own as long as that type needs (so no bounds
+    check refuses it first: only the type is wrong)."""
+    width = {"SCALAR": 1, "VEC2": 2, "VEC3": 3, "VEC4": 4}[kind]
 
-    return glb_file(edit)
+    def make(path: Path) -> Path:
+        doc, data = splat_doc(count)
+        index = doc["meshes"][0]["primitives"][0]["attributes"][attribute]
+        values = np.full((count, width), 0.5, "<f4").tobytes()
+        doc["bufferViews"].append({"buffer": 0, "byteOffset": len(data), "byteLength": len(values)})
+        doc["accessors"][index].update(type=kind, bufferView=len(doc["bufferViews"]) - 1)
+        data += values
+        doc["buffers"][0]["byteLength"] = len(data)
+        return raw(".glb", glb(doc, data))(path)
+
+    return make
 
 
 def parent_moves_splats(doc: dict) -> None:
@@ -377,7 +386,7 @@ CASES = [
     # masks and PLYs (item 11)
     Case("mask txt 1e19", "mask", raw(".txt", b"1e19\n")),
     Case("mask txt inf", "mask", raw(".txt", b"3 inf\n")),
-    Case("ply ascii of no vertices", "model", ascii_ply_of_no_vertices),
+    Case("ply ascii of no vertices", "model", ascii_ply_of_no_vertices, names=("holds no Gaussians",)),
 ]
 
 

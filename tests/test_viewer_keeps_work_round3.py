@@ -102,7 +102,6 @@ def test_ctrl_s_after_editing_the_running_model_saves_the_opened_project(tmp_pat
         doc.delete()
         wait(lambda: (runs.finish_pending(ui), not ui.training.pending)[1], 60, "the deletion to reach the trainer")
         assert ui.messages.error == "" and session.snapshot().means.shape[0] == doc.editor.count
-        assert not doc.unsaved()  # the run's model is the run's: no edit of the project
         files.save_project(doc, session, ui, layout="")
     finally:
         session.close()
@@ -112,6 +111,7 @@ def test_ctrl_s_after_editing_the_running_model_saves_the_opened_project(tmp_pat
         assert np.array_equal(saved.models[0].kept, kept), when
         assert any(n.startswith("models/") for n in zipfile.ZipFile(project).namelist()), when
         files.save_project(doc, session, ui, layout="")
+    assert not doc.unsaved()  # the run's model is the run's: its deletions are no edit of the project
 
 
 # ------------------------------------------------------------------------------------------ item 2
@@ -167,28 +167,37 @@ def test_a_style_setting_changed_while_reconstructing_is_the_stylizations(demo_s
 # ------------------------------------------------------------------------------------------ item 4
 def test_two_windows_on_one_output_folder_claim_their_own_run_folders(demo_scene, tmp_path):
     """Two windows writing to the same output folder start Reconstruct + stylize one after the other: each run has
-    folders of its own, made as it starts, and what each run saves lands in its own; the folders a stopped run never
-    wrote to are given back once its thread is gone."""
+    folders of its own, made as it starts, and what each run saves lands in its own (before, both reconstructions
+    wrote reconstruction/); the folders a stopped run never wrote to are given back once its thread is gone."""
     scene_dir, style, _ = demo_scene
     apps = [ViewerApp(Paths(out=str(tmp_path / "out")), recon_iters=2, downscale=8) for _ in range(2)]
+    saved: list[list[str]] = [[], []]
     for app in apps:
         files.open_data(app.document, app.session, app.ui, str(scene_dir))
         files.open_style(app.document, app.session, app.ui, str(style))
         runs.start_reconstruction(app.document, app.session, app.ui, then_stylize=True)
     try:
-        claimed = [list(app.ui.training.claimed) for app in apps]
-        assert [p.name for p in claimed[0]] == ["reconstruction", "stylized"]
-        assert [p.name for p in claimed[1]] == ["reconstruction_2", "stylized_2"]
-        assert all(p.is_dir() for c in claimed for p in c)
+        def reconstructed(i: int) -> bool:
+            saved[i] += [m.path for m in apps[i].session.poll() if isinstance(m, Saved)]
+            return bool(saved[i]) or not apps[i].session.running
+
+        for i in range(2):
+            wait(lambda: reconstructed(i), 300, f"window {i + 1}'s reconstruction")
     finally:
         for app in apps:
             app.session.close()
-    for app, mine in zip(apps, claimed):
-        saved = [m.path for m in app.session.poll() if isinstance(m, Saved)]
-        assert all(Path(p).parent in mine for p in saved), (saved, mine)
+    for i, app in enumerate(apps):
+        saved[i] += [m.path for m in app.session.poll() if isinstance(m, Saved)]
+    first, second = (Path(paths[0]).parent for paths in saved)
+    assert first != second and first.parent == second.parent == tmp_path / "out", saved
+    claimed = [list(app.ui.training.claimed) for app in apps]
+    assert [p.name for p in claimed[0]] == ["reconstruction", "stylized"]
+    assert [p.name for p in claimed[1]] == ["reconstruction_2", "stylized_2"]
+    for app, mine, paths in zip(apps, claimed, saved):
+        assert all(Path(p).parent in mine for p in paths), (paths, mine)
         runs.give_back_unused(app.session, app.ui)
         for folder in mine:  # kept when a run wrote there, gone when it stayed empty
-            assert folder.is_dir() == any(Path(p).parent == folder for p in saved)
+            assert folder.is_dir() == any(Path(p).parent == folder for p in paths)
 
 
 def _photos(folder: Path, n: int = 3) -> Path:
@@ -219,13 +228,12 @@ def test_a_second_sfm_on_the_same_output_leaves_the_running_ones_partial_folder(
     """Structure from motion runs into OUT; a second run on the same OUT (another window, a second command) starts
     meanwhile: it stops in one line, and the first goes on to its own end (here: photos that overlap nothing),
     never to a FileNotFoundError. A partial folder nobody holds (a killed run's) is removed by the next run."""
-    from training.scene.sfm import LOCK_NAME, partial_folder, run_sfm
+    from training.scene.sfm import partial_folder, run_sfm
 
     photos = _photos(tmp_path / "photos")
     out = tmp_path / "out" / "scene"
     stale = partial_folder(out)
-    (stale / ".work").mkdir(parents=True)
-    (stale / LOCK_NAME).touch()  # a killed run's: its lock went with its process
+    (stale / ".work").mkdir(parents=True)  # a killed run's: no process holds it
     said, second = [], {}
 
     def progress(p):
@@ -257,6 +265,7 @@ def test_photos_sharing_a_name_stem_are_staged_under_names_of_their_own(tmp_path
     for name, img in pictures.items():
         write_image(tmp_path / name, img)
     staged = _stage_photos(sorted(tmp_path.glob("*.*")), tmp_path / "staged", 32, log=lambda s: None)
+    assert len(list((tmp_path / "staged").iterdir())) == 4  # before: a.png and b.jpg, two written over
     assert sorted(staged.values()) == sorted(pictures)
     assert sorted(p.name for p in (tmp_path / "staged").iterdir()) == sorted(staged)
     for name, original in staged.items():  # each staged file is its own photo, shrunk
