@@ -459,6 +459,7 @@ class ViewerApp:
             ui.messages.guarded("recovery project", self.recovery.close, doc, lambda: files.project_now(doc, ui),
                                 self._scene_name())
         self.session.close()
+        runs.give_back_unused(self.session, self.ui)  # no frame comes after this one to do it
         for item in self.session.poll():
             if isinstance(item, Saved):
                 self.ui.messages.say(f"saved {item.path}")
@@ -618,6 +619,7 @@ def run(app: ViewerApp) -> int | None:
     finally:
         if not app.closed:
             app.session.close()
+            runs.give_back_unused(app.session, app.ui)
         for sig, handler in previous.items():
             signal.signal(sig, handler)
     return stopped_by[0] if stopped_by else None
