@@ -423,9 +423,10 @@ class ViewerApp:
             ui.messages.fail(f"no recovery project for unsaved edits: {exc}")
             return
         for path, note in left:
-            written = note.get("written", path.stat().st_mtime)
-            written = time.strftime("%Y-%m-%d %H:%M", time.localtime(written if isinstance(written, (int, float))
-                                                                     else path.stat().st_mtime))
+            written = note.get("written")
+            if not isinstance(written, (int, float)):
+                written = path.stat().st_mtime
+            written = time.strftime("%Y-%m-%d %H:%M", time.localtime(written))
             scene = str(note.get("scene") or "")
             ui.questions.append(Question(
                 "Recover unsaved edits", f"splatstyler closed on {written} with edits that were not saved"

@@ -49,6 +49,9 @@ def _model_opened(session, ui, path: str) -> None:
     ui.paths.model = str(path)
 
 
+UNSAVED = "Unsaved edits"  # the question's title (the modal's name)
+
+
 def unless_unsaved(doc, session, ui, what: str, action) -> None:
     """``action()`` now, or, while the document has unsaved edits, once the user has answered the question this
     asks: Save (the project is saved first, as Ctrl+S saves it), Discard (the edits go), or Cancel (nothing
@@ -71,9 +74,6 @@ def unless_unsaved(doc, session, ui, what: str, action) -> None:
     ui.questions.append(Question(UNSAVED, f"The scene has edits that are not saved. Save them{where} before "
                                           f"{what}?", [("Save", save_first), ("Discard", discard_first),
                                                        ("Cancel", None)]))
-
-
-UNSAVED = "Unsaved edits"  # the question's title (the modal's name)
 
 
 def open_model(doc, session, ui, path: str, ask: bool = True) -> None:
