@@ -28,6 +28,7 @@ import numpy as np
 
 from training.core.atomic_write import atomic_open
 from training.core.errors import InputError
+from training.core.json_numbers import NumberOutOfRange, parse_json
 from training.scene.camera import Camera, camera_of
 from training.scene.pose import orbit, path_camera
 
@@ -134,7 +135,9 @@ class CameraPath:
         if not path.is_file():
             raise InputError(path, "file does not exist" if not path.exists() else "is not a file")
         try:
-            data = json.loads(path.read_text())
+            data = parse_json(path.read_text())
+        except NumberOutOfRange as exc:
+            raise InputError(path, str(exc)) from None
         except (ValueError, UnicodeDecodeError) as exc:
             raise InputError(path, f"not valid JSON ({str(exc).splitlines()[0]})") from None
         except RecursionError:

@@ -62,6 +62,7 @@ import numpy as np
 from app.camera_path import CameraPath
 from training.core.atomic_write import atomic_path
 from training.core.errors import InputError
+from training.core.json_numbers import NumberOutOfRange, parse_json
 from training.core.npy_io import read_npy
 from training.model.colour_edit import ColourAdjustment, ColourEdits
 from training.scene.camera import Camera
@@ -73,10 +74,12 @@ MANIFEST = "project.json"
 # version n -> a function giving the version n+1 manifest; a new version adds its step here
 MIGRATIONS: dict[int, Callable[[dict], dict]] = {}
 _HASH_CHUNK = 1 << 20
-# what a member may inflate to: a manifest is settings and keyframes (kilobytes); an array has a row per Gaussian,
-# and no scene has 100 million of them. Checked before a member is inflated (a zip bomb is refused unread); zipfile
-# itself stops a member at the size its header declares.
-MAX_MANIFEST_BYTES = 64 << 20
+# what a member may inflate to: a manifest is settings and keyframes (kilobytes: 4 MiB holds thousands of keyframes);
+# an array has a row per Gaussian, and no scene has 100 million of them. Checked before a member is inflated (a zip
+# bomb is refused unread); zipfile itself stops a member at the size its header declares. The manifest's bound is
+# also what parsing it may cost: JSON of nothing but "{}," becomes 25 times its size in Python objects (4 MiB: about
+# 120 MB; the 64 MiB allowed before took 1.9 GB)
+MAX_MANIFEST_BYTES = 4 << 20
 MAX_ARRAY_ROWS = 100_000_000
 # what the arrays of one project inflate to together, each member once however often the manifest names it: a
 # 10-million-Gaussian model's row list (80 MB), selection and hidden flags and 40 colour regions fit; a few kB of
@@ -86,6 +89,9 @@ MAX_ARRAY_BYTES = 512 << 20
 # a deflated PLY, its zero SH padding included, stays under 5:1), or to EMBED_FREE_BYTES whatever its ratio
 MAX_EMBED_RATIO = 20
 EMBED_FREE_BYTES = 1 << 20
+# how a member may be stored: what zipfile inflates (PPMd, for one, it cannot), never encrypted
+READABLE_COMPRESSION = {zipfile.ZIP_STORED: "stored", zipfile.ZIP_DEFLATED: "deflate", zipfile.ZIP_BZIP2: "bzip2",
+                        zipfile.ZIP_LZMA: "lzma"}
 # what reading a damaged member raises: a checksum or deflate error, a member cut short
 _ZIP_ERRORS = (zipfile.BadZipFile, zlib.error, EOFError, OSError, ValueError)
 
@@ -135,6 +141,9 @@ class Project:
     up: np.ndarray = field(default_factory=lambda: np.array([0.0, -1.0, 0.0]))
     world: np.ndarray = field(default_factory=lambda: np.eye(4))  # similarity: up axis and scale
     source: Path | None = None  # the file it was opened from (where embedded models are read)
+    # copies of embedded models by member name (the viewer's, made when it opened them): what a save writes, so that
+    # a project whose file has moved or gone since it was opened can still be saved
+    copies: dict[str, Path] = field(default_factory=dict)
 
     def stylize_config(self):
         """The stylization settings as a StylizeConfig (validated when the project was opened)."""
@@ -206,14 +215,18 @@ def file_sha256(path: str | Path) -> str:
 
 
 # --------------------------------------------------------------------------------------------- saving
+def with_suffix(path: str | Path) -> Path:
+    """``path`` as a project file's name: ``.splatproj`` added when it lacks it."""
+    path = Path(path)
+    return path if path.suffix == SUFFIX else path.with_name(path.name + SUFFIX)
+
+
 def save_project(path: str | Path, project: Project, embed: bool = False) -> Path:
     """Write ``project`` to ``path`` (``.splatproj`` added when missing) atomically. Each model's hash is the one
     its reference carries (taken when the file was opened: the edits refer to those rows, so a file rewritten
     since is flagged when the project opens), else the file's as it is now; ``embed`` copies the model files into
     the project (models already embedded stay embedded, under the same member name). Returns the path written."""
-    path = Path(path)
-    if path.suffix != SUFFIX:
-        path = path.with_name(path.name + SUFFIX)
+    path = with_suffix(path)
     folder = path.absolute().parent
     arrays: dict[str, np.ndarray] = {}
     embedded: dict[str, tuple[str, object]] = {}  # member -> ("file", path) | ("zip", member in the source)
@@ -222,15 +235,16 @@ def save_project(path: str | Path, project: Project, embed: bool = False) -> Pat
         if r is None:
             return None
         out = {"path": _relative(r.path, folder), "abs_path": str(Path(r.path).absolute())}
+        embedded_before = r.embedded is not None and (project.source is not None or r.embedded in project.copies)
         if hash_it:
-            if r.sha256 is not None or (r.embedded is not None and project.source is not None):
+            if r.sha256 is not None or embedded_before:
                 # the hash of the file the edits were made on (taken when it was opened): a file changed since
                 # stays flagged, and a missing one is recognised when it is back
                 out["sha256"] = r.sha256
             elif Path(r.path).is_file():
                 out["sha256"] = file_sha256(r.path)
             member = None
-            if r.embedded is not None and project.source is not None:
+            if embedded_before:
                 # the member keeps its name: what the viewer noted of it still names it in the file written
                 member = r.embedded
                 embedded[member] = ("zip", r.embedded)
@@ -285,8 +299,15 @@ def save_project(path: str | Path, project: Project, embed: bool = False) -> Pat
                 z.writestr(member, buf.getvalue())
             for member, (kind, src) in embedded.items():
                 # models are stored, not deflated: PLY floats barely compress and are large
+                copy = project.copies.get(src) if kind == "zip" else None
                 if kind == "file":
                     z.write(src, member, compress_type=zipfile.ZIP_STORED)
+                elif copy is not None and Path(copy).is_file():
+                    # the copy the edits were made on, whether or not the project file is still where it was
+                    z.write(copy, member, compress_type=zipfile.ZIP_STORED)
+                elif project.source is None:
+                    raise InputError(copy, f"embedded model {src} cannot be saved: the viewer's copy of it is gone "
+                                           "and there is no project file to read it from")
                 else:  # streamed from the project it was opened from: a model may be larger than the memory
                     info = zipfile.ZipInfo(member)
                     info.compress_type = zipfile.ZIP_STORED
@@ -332,6 +353,7 @@ def open_project(path: str | Path, check_hashes: bool = True) -> tuple[Project, 
             info = z.getinfo(MANIFEST)
         except KeyError:
             raise InputError(path, f"not a splatstyler project (no {MANIFEST} inside)") from None
+        check_members(z, path)
         if info.file_size > MAX_MANIFEST_BYTES:
             raise InputError(path, f"{MANIFEST} would inflate to {info.file_size:,} bytes; a project's is at most "
                                    f"{MAX_MANIFEST_BYTES:,}")
@@ -340,7 +362,9 @@ def open_project(path: str | Path, check_hashes: bool = True) -> tuple[Project, 
         except _ZIP_ERRORS as exc:
             raise InputError(path, f"{MANIFEST} cannot be read ({_first_line(exc)})") from None
         try:
-            data = json.loads(raw)
+            data = parse_json(raw)
+        except NumberOutOfRange as exc:
+            raise InputError(path, f"{MANIFEST} {exc}") from None
         except (ValueError, UnicodeDecodeError) as exc:
             raise InputError(path, f"{MANIFEST} is not valid JSON ({str(exc).splitlines()[0]})") from None
         except RecursionError:
@@ -349,6 +373,17 @@ def open_project(path: str | Path, check_hashes: bool = True) -> tuple[Project, 
         project = reader.project(upgrade(data, path))
     project.source = path
     return project, reader.problems
+
+
+def check_members(z: zipfile.ZipFile, path: Path) -> None:
+    """Every member is one this reader can inflate: not encrypted, and compressed in a way zipfile knows (a project
+    from another zip tool may use PPMd); else one line naming the member, before anything is read."""
+    for info in z.infolist():
+        if info.flag_bits & 0x1:
+            raise InputError(path, f"member {info.filename} is encrypted; a project's members are not")
+        if info.compress_type not in READABLE_COMPRESSION:
+            raise InputError(path, f"member {info.filename} is compressed with method {info.compress_type}, which "
+                                   f"this reader cannot inflate ({', '.join(READABLE_COMPRESSION.values())})")
 
 
 def upgrade(data, name) -> dict:

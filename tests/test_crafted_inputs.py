@@ -4,12 +4,18 @@ process of its own under a 1.5 GB address-space limit (tests/crafted_probe.py): 
 project's member), exit 2, no traceback, memory bounded by the file rather than by what it declares. A case for
 another format is one more ``Case`` in ``CASES``.
 
-21 of the 34 failed on the code before (issue 38): a MemoryError after gigabytes (a .npy header of 1e9 bytes, 200
-colour regions reading one member 200 times, 60 distinct 10-million-row members, a mask declaring 10^12 rows), an
+21 of the first 34 failed on the code before (issue 38): a MemoryError after gigabytes (a .npy header of 1e9 bytes,
+200 colour regions reading one member 200 times, 60 distinct 10-million-row members, a mask declaring 10^12 rows), an
 exception's class name with exit 1 (an empty or zipped mask, a repeated PLY property, nested JSON, a model SPZ cannot
 place), a file written though it should not be (200 MB extracted from a 200 kB project), an error naming a deleted
 temporary file, or a file accepted whose export our own readers then refused (a log-scale of 100). The others
 (declared counts a file cannot hold, truncations, a manifest of 1 GB) keep what already held.
+
+The cases after them (issue 49) failed with exit 1 and an exception's name, or were read wrong without a word: whole
+numbers of 400 digits (beyond a float) anywhere in a project, a camera path or a .glb, and a .glb count of 5000
+digits; .glb attributes of the wrong accessor type (broadcast, truncated or a numpy error) and a parent node that
+moves the splats (its transform was ignored); a project member encrypted or compressed with PPMd; a 60 MB manifest of
+``{},`` that json would make 1.9 GB of; a .txt mask of 1e19 or inf; an ASCII PLY of no vertices.
 """
 
 from __future__ import annotations
@@ -26,6 +32,7 @@ import pytest
 import torch
 
 from tests.crafted_probe import Case, check_case
+from tests.test_spz_gltf_crafted import glb, splat_doc
 from training.model.gaussians import Gaussians
 from training.model.ply_io import write_ply
 
@@ -173,6 +180,103 @@ def manifest_bomb(path: Path) -> Path:
     return out
 
 
+# ------------------------------------------------------------------------------------------- numbers beyond a float
+BIG = "1" + "0" * 400  # a whole number no float holds (a float reaches about 1.8e308)
+
+
+def big_in(manifest: dict, where: str) -> str:
+    """``manifest`` as JSON with the placeholder string ``where`` stands for replaced by BIG, unquoted."""
+    return json.dumps(manifest).replace(f'"{where}"', BIG)
+
+
+def project_with_big(**fields) -> Callable:
+    return project(big_in({"version": 1, "models": [{"path": "m.ply"}], **fields}, "@BIG@"))
+
+
+def model_with_big(**fields) -> Callable:
+    return project(big_in({"version": 1, "models": [{"path": "m.ply", **fields}]}, "@BIG@"))
+
+
+def camera_path_with_big(key: dict | None = None, **fields) -> Callable:
+    return raw(".json", big_in({"keyframes": [key or KEY, KEY], **fields}, "@BIG@").encode())
+
+
+EYE_BIG = [[1, 0, 0, "@BIG@"], [0, 1, 0, 0], [0, 0, 1, 0], [0, 0, 0, 1]]
+
+
+# ------------------------------------------------------------------------------------------------------ .glb files
+def glb_file(edit=None, text_edit=None, count: int = 10) -> Callable:
+    """A valid .glb of ``count`` splats (tests/test_spz_gltf_crafted.py), its glTF changed by ``edit(doc)`` and its
+    JSON text by ``text_edit(text)``."""
+    def make(path: Path) -> Path:
+        doc, data = splat_doc(count)
+        if edit is not None:
+            edit(doc)
+        text = json.dumps(doc)
+        return raw(".glb", glb(text_edit(text) if text_edit else text, data))(path)
+
+    return make
+
+
+def accessor_type(attribute: str, kind: str, count: int = 10) -> Callable:
+    """The attribute's accessor of type ``kind``, with a view of its own as long as that type needs (so no bounds
+    check refuses it first: only the type is wrong)."""
+    width = {"SCALAR": 1, "VEC2": 2, "VEC3": 3, "VEC4": 4}[kind]
+
+    def make(path: Path) -> Path:
+        doc, data = splat_doc(count)
+        index = doc["meshes"][0]["primitives"][0]["attributes"][attribute]
+        values = np.full((count, width), 0.5, "<f4").tobytes()
+        doc["bufferViews"].append({"buffer": 0, "byteOffset": len(data), "byteLength": len(values)})
+        doc["accessors"][index].update(type=kind, bufferView=len(doc["bufferViews"]) - 1)
+        data += values
+        doc["buffers"][0]["byteLength"] = len(data)
+        return raw(".glb", glb(doc, data))(path)
+
+    return make
+
+
+def parent_moves_splats(doc: dict) -> None:
+    doc["nodes"] = [{"children": [1], "translation": [5.0, 0.0, 0.0]}, {"mesh": 0}]
+
+
+def zip_member_flags(make: Callable, member: str, flag: int = 0, method: int | None = None) -> Callable:
+    """A project from ``make`` whose ``member`` is marked encrypted (``flag``) or compressed with ``method``, as
+    another zip tool would write it: the bits patched in its local and central headers."""
+    def patched(path: Path) -> Path:
+        out = make(path)
+        data = bytearray(out.read_bytes())
+        name = member.encode()
+        for signature, flags_at, method_at, name_at in ((b"PK\x03\x04", 6, 8, 30), (b"PK\x01\x02", 8, 10, 46)):
+            at = data.find(signature)
+            while at >= 0:
+                if data[at + name_at: at + name_at + len(name)] == name:
+                    bits = struct.unpack_from("<H", data, at + flags_at)[0] | flag
+                    struct.pack_into("<H", data, at + flags_at, bits)
+                    if method is not None:
+                        struct.pack_into("<H", data, at + method_at, method)
+                at = data.find(signature, at + 4)
+        out.write_bytes(bytes(data))
+        return out
+
+    return patched
+
+
+def empty_objects_manifest(path: Path) -> Path:
+    out = path.with_suffix(".splatproj")
+    with zipfile.ZipFile(out, "w", zipfile.ZIP_DEFLATED) as z, z.open("project.json", "w", force_zip64=True) as f:
+        f.write(b'{"version": 1, "layout": [')
+        block = b"{}," * (1 << 20)
+        for _ in range(20):  # 60 MB of "{}," deflated to some 60 kB
+            f.write(block)
+        f.write(b'{}]}')
+    return out
+
+
+def ascii_ply_of_no_vertices(path: Path) -> Path:
+    return raw(".ply", ply_header(*vertex(0)).replace(b"binary_little_endian", b"ascii"))(path)
+
+
 CASES = [
     # PLY
     Case("ply repeated property", "model",
@@ -241,6 +345,48 @@ CASES = [
              .encode())),
     Case("camera path infinite duration", "camera path",
          raw(".json", b'{"keyframes": [' + json.dumps(KEY).encode() + b'], "duration": Infinity}')),
+    # whole numbers beyond a float (issue 49 item 8)
+    Case("project camera fx of 400 digits", "project", project_with_big(camera={**KEY, "fx": "@BIG@"})),
+    Case("project keyframe of 400 digits", "project",
+         project_with_big(camera_path={"keyframes": [{**KEY, "world_to_camera": EYE_BIG}, KEY]})),
+    Case("project transform of 400 digits", "project", model_with_big(transform=EYE_BIG)),
+    Case("project world of 400 digits", "project", project_with_big(world=EYE_BIG)),
+    Case("project up of 400 digits", "project", project_with_big(up=[0, "@BIG@", 0])),
+    Case("project strength of 400 digits", "project", model_with_big(strength="@BIG@")),
+    Case("project colour of 400 digits", "project", model_with_big(colour=[{"region": None, "hue": "@BIG@"}])),
+    Case("project stylize setting of 400 digits", "project", project_with_big(stylize={"lambda_content": "@BIG@"})),
+    Case("project path duration of 400 digits", "project",
+         project_with_big(camera_path={"keyframes": [], "duration": "@BIG@"})),
+    Case("project camera distance of 400 digits", "project",
+         project_with_big(camera={**KEY, "target_distance": "@BIG@"})),
+    Case("camera path duration of 400 digits", "camera path", camera_path_with_big(duration="@BIG@")),
+    Case("camera path fx of 400 digits", "camera path", camera_path_with_big({**KEY, "fx": "@BIG@"})),
+    Case("camera path matrix of 400 digits", "camera path", camera_path_with_big({**KEY, "world_to_camera": EYE_BIG})),
+    Case("glb translation of 400 digits", "model",
+         glb_file(lambda d: d["nodes"][0].update(translation=[0, 0, "@BIG@"]),
+                  lambda t: t.replace('"@BIG@"', BIG))),
+    Case("glb count of 5000 digits", "model",
+         glb_file(lambda d: d["accessors"][0].update(count="@COUNT@"),
+                  lambda t: t.replace('"@COUNT@"', "1" + "0" * 5000))),
+    # .glb accessor types and node transforms (items 5 and 9)
+    Case("glb position VEC2", "model", accessor_type("POSITION", "VEC2")),
+    Case("glb position VEC4", "model", accessor_type("POSITION", "VEC4")),
+    Case("glb position SCALAR", "model", accessor_type("POSITION", "SCALAR")),
+    Case("glb rotation VEC3", "model", accessor_type("KHR_gaussian_splatting:ROTATION", "VEC3")),
+    Case("glb scale SCALAR", "model", accessor_type("KHR_gaussian_splatting:SCALE", "SCALAR")),
+    Case("glb opacity VEC3", "model", accessor_type("KHR_gaussian_splatting:OPACITY", "VEC3")),
+    Case("glb parent node moves the splats", "model", glb_file(parent_moves_splats)),
+    # project members another zip tool wrote, and a manifest that parses into gigabytes (item 10)
+    Case("project member encrypted", "project",
+         zip_member_flags(project(with_model(selected="arrays/s.npy"), {"arrays/s.npy": saved(np.ones(N, bool))}),
+                          "arrays/s.npy", flag=0x1), names=("arrays/s.npy",)),
+    Case("project manifest compressed with PPMd", "project",
+         zip_member_flags(project(with_model()), "project.json", method=98), names=("project.json",)),
+    Case("project manifest of 60 MB of empty objects", "project", empty_objects_manifest),
+    # masks and PLYs (item 11)
+    Case("mask txt 1e19", "mask", raw(".txt", b"1e19\n")),
+    Case("mask txt inf", "mask", raw(".txt", b"3 inf\n")),
+    Case("ply ascii of no vertices", "model", ascii_ply_of_no_vertices, names=("holds no Gaussians",)),
 ]
 
 

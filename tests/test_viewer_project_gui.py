@@ -222,3 +222,74 @@ Path(os.environ["RESULT"]).write_text(json.dumps(found))
     saved, _ = open_project(chosen)
     assert len(saved.models[0].kept) == found["count"] == 140  # Ctrl+S wrote the deletion there
     assert not list((tmp_path / "out").glob("*.splatproj"))
+
+
+def test_quit_with_unsaved_edits_asks_first_and_a_closed_window_leaves_them_to_recover(tmp_path):
+    """Unsaved edits put "*" in the title; Ctrl+Q asks Save / Discard / Cancel in a modal, and Cancel keeps the
+    window going with the edits. A close nobody is asked about (what SIGTERM does) keeps them in the recovery
+    project, which the next start offers: Open brings the edits back, unsaved, into the next window."""
+    write_model(tmp_path / "m.ply")
+    first = run_gui(PRELUDE + f"""
+from imgui_bundle import hello_imgui, imgui
+app = ViewerApp(Paths(model={str(tmp_path / "m.ply")!r}, out=str(OUT / "out")))
+
+def test(ctx):
+    wait(ctx, lambda: app.document.editor is not None, 60, "the model")
+    ctx.yield_(2)
+    found["title before"] = app.ui.window.title
+    ed = app.document.editor
+    ed.select(np.arange(ed.count) < 10)
+    app.document.delete()
+    ctx.yield_(3)
+    found["title after"] = app.ui.window.title
+    ctx.key_press(imgui.Key.mod_ctrl | imgui.Key.q)
+    ctx.yield_(3)
+    found["asked"] = [q.title for q in app.ui.questions]
+    found["modal"] = ctx.item_exists("//Unsaved edits/Cancel") and ctx.item_exists("//Unsaved edits/Discard")
+    ctx.set_ref("//Unsaved edits")
+    ctx.item_click("Cancel")
+    frames = app.frames
+    ctx.yield_(10)
+    found["after cancel"] = dict(questions=len(app.ui.questions), exit=hello_imgui.get_runner_params().app_shall_exit,
+                                 frames=app.frames - frames, count=app.document.editor.count)
+    found["close button"] = hello_imgui.get_runner_params().callbacks.confirm_exit()
+    ctx.yield_(3)
+    found["asked again"] = [q.title for q in app.ui.questions]
+    ctx.set_ref("//Unsaved edits")
+    ctx.item_click("Cancel")
+    ctx.yield_(3)
+    # returning closes the window without a question, as SIGTERM and Ctrl-C do
+
+run(app, test)
+recovery = Path(os.environ["XDG_CONFIG_HOME"]) / "splatstyler" / "recovery"
+found["recovery"] = sorted(p.name for p in recovery.iterdir())
+found["closed"] = app.closed
+Path(os.environ["RESULT"]).write_text(json.dumps(found))
+""", tmp_path)
+    assert first["title before"] == "splatstyler - m.ply" and first["title after"] == "splatstyler - m.ply *"
+    assert first["asked"] == ["Unsaved edits"] and first["modal"]
+    assert first["after cancel"] == {"questions": 0, "exit": False, "frames": first["after cancel"]["frames"],
+                                     "count": 140} and first["after cancel"]["frames"] >= 5
+    assert first["close button"] is False and first["asked again"] == ["Unsaved edits"]
+    assert first["closed"] and [n.rsplit(".", 1)[1] for n in first["recovery"]] == ["json", "splatproj"]
+
+    second = run_gui(PRELUDE + f"""
+app = ViewerApp(Paths(out=str(OUT / "out2")))
+
+def test(ctx):
+    wait(ctx, lambda: app.ui.questions, 60, "the offer")
+    found["offer"] = app.ui.questions[0].text
+    ctx.yield_(3)
+    ctx.set_ref("//Recover unsaved edits")
+    ctx.item_click("Open")
+    wait(ctx, lambda: app.document.editor is not None, 60, "the recovered edits")
+    ctx.yield_(3)
+    found["count"] = app.document.editor.count
+    found["title"] = app.ui.window.title
+    found["project"] = app.ui.project.path
+
+run(app, test)
+Path(os.environ["RESULT"]).write_text(json.dumps(found))
+""", tmp_path)
+    assert "closed on" in second["offer"] and "m.ply" in second["offer"]
+    assert second["count"] == 140 and second["title"].endswith(" *") and second["project"] == ""

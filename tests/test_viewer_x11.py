@@ -446,3 +446,35 @@ Path(os.environ["RESULT"]).write_text(json.dumps(found))
         camera = pickle.load(f)
     value = psnr(region, headless_render(other, camera))
     assert value >= 25.0, f"the X screen does not show the model opened (PSNR {value:.1f} dB)"
+
+
+def test_x11_the_window_title_says_when_edits_are_unsaved(demo_scene, x_server, tmp_path):
+    """The title the X11 window carries (GLFW's, as a window manager shows it) ends in "*" after a deletion and
+    loses it when Ctrl+S saves the project."""
+    _, _, model = demo_scene
+    found = run_gui(PRELUDE + f"""
+import glfw
+from imgui_bundle import glfw_utils, imgui
+app = ViewerApp(Paths(model={str(model)!r}, out=str(OUT / "out")))
+
+def title(ctx):
+    ctx.yield_(2)
+    return on_gl_thread(ctx, lambda: glfw.get_window_title(glfw_utils.glfw_window_hello_imgui()))
+
+def test(ctx):
+    wait(ctx, lambda: app.document.editor is not None, 60, "the model")
+    found["opened"] = title(ctx)
+    ed = app.document.editor
+    ed.select(np.arange(ed.count) < 10)
+    app.document.delete()
+    found["edited"] = title(ctx)
+    ctx.key_press(imgui.Key.mod_ctrl | imgui.Key.s)
+    found["saved"] = title(ctx)
+
+run(app, test)
+found["project"] = app.ui.project.path
+Path(os.environ["RESULT"]).write_text(json.dumps(found))
+""", tmp_path, env=x11_env(x_server))
+    assert found["opened"] == "splatstyler - model.ply"
+    assert found["edited"] == "splatstyler - model.ply *"
+    assert found["saved"] == f"splatstyler - {Path(found['project']).name}"

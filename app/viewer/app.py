@@ -26,11 +26,11 @@ from app.viewer.edit.colour_view import displayed
 from app.viewer.edit.document import Document
 from app.viewer.edit.world_edit import follow_world, scene_up
 from app.viewer.layout import (configure, floating_windows, help_overlay, quit_app, style_back, style_forward,
-                               watch_style_tab)
+                               watch_style_tab, window_title)
 from app.viewer.live import photos, runs
 from app.viewer.live.session import Failed, LiveSession, Said, Saved, StageBegan, StateChanged
 from app.viewer.platform import choose_platform, prepare_glfw
-from app.viewer.state import Paths, TrainingState, Ui
+from app.viewer.state import Paths, Question, TrainingState, Ui
 from training.core.messages import ModelSnapshot, Noted, ViewMoved, Warned
 
 IDLE_FPS = 4.0  # frames per second while nothing happens: each frame costs a running trainer CPU time
@@ -77,6 +77,7 @@ class ViewerApp:
         self._overlays_stale = False  # the stylizer changed view since the overlays were built
         self._sfm_framed = None  # (position, rotation) of the view as the SfM preview last framed it
         self.sfm_shown: tuple = ((), None)  # (cameras, points snapshot) of SfM the view was last given (tests look)
+        self.recovery = None  # recovery.Recovery, made with the window (post_init)
 
     @property
     def view(self) -> View3D | None:
@@ -288,6 +289,7 @@ class ViewerApp:
                 ui.messages.say(item.message)
         runs.finish_pending(ui)
         ui.messages.guarded("photos", photos.end_when_done, doc, session, ui)
+        runs.give_back_unused(session, ui)
         watch_style_tab(ui)
         if doc.cameras and view.settings.show_frustums and self._cameras_at_view() != self._frustums_hidden:
             self.update_overlays()  # the view came near cameras, or left them
@@ -398,6 +400,7 @@ class ViewerApp:
         self._place_camera()
         if ui.project.path:
             ui.messages.guarded("open project", files.open_project, doc, session, ui, ui.project.path)
+        self._start_recovery()
         start = {"demo": lambda: runs.start_reconstruction(doc, session, ui, then_stylize=True),
                  "reconstruct": lambda: runs.start_reconstruction(doc, session, ui),
                  "stylize": lambda: runs.start_stylization(doc, session, ui)}.get(self._start)
@@ -406,9 +409,57 @@ class ViewerApp:
         elif ui.photos.folder and not ui.photos.dialog:
             ui.messages.guarded("from photos", photos.start_photos, doc, session, ui)
 
+    # ------------------------------------------------------------------ unsaved edits
+    def _start_recovery(self) -> None:
+        """This window's recovery project, and the question for each one a closed window left (newest first)."""
+        from app.viewer.recovery import Recovery, forget, left_behind
+
+        ui = self.ui
+        try:
+            left = left_behind()
+            self.recovery = Recovery()
+        except OSError as exc:
+            ui.messages.fail(f"no recovery project for unsaved edits: {exc}")
+            return
+        for path, note in left:
+            written = note.get("written")
+            if not isinstance(written, (int, float)):
+                written = path.stat().st_mtime
+            written = time.strftime("%Y-%m-%d %H:%M", time.localtime(written))
+            scene = str(note.get("scene") or "")
+            ui.questions.append(Question(
+                "Recover unsaved edits", f"splatstyler closed on {written} with edits that were not saved"
+                + (f" (of {scene})" if scene else "") + ". Open them?",
+                [("Open", lambda p=path, s=scene: files.open_recovered(self.document, self.session, ui, str(p), s,
+                                                                       self.recovery.adopted.append)),
+                 ("Discard", lambda p=path: forget(p)), ("Later", None)]))
+
+    def _scene_name(self) -> str:
+        return self.ui.project.path or self.ui.paths.model
+
+    def keep_recovery(self) -> None:
+        """Each frame: the recovery project written or removed (recovery.py), the title's "*"."""
+        doc, ui = self.document, self.ui
+        if self.recovery is not None:
+            self.recovery.keep(doc, lambda: files.project_now(doc, ui), self._scene_name())
+        title = window_title(doc, ui)
+        if title != ui.window.title:
+            ui.window.title = title
+            if self._platform != "null":
+                import glfw
+                from imgui_bundle import glfw_utils
+
+                glfw.set_window_title(glfw_utils.glfw_window_hello_imgui(), title)
+
     def before_exit(self) -> None:
-        """Window closed: the trainer stops and saves (checkpoint, model) before the GL objects go."""
+        """Window closed: the trainer stops and saves (checkpoint, model) before the GL objects go; unsaved edits
+        (a signal closes without asking) are kept in the recovery project."""
+        if self.recovery is not None:
+            doc, ui = self.document, self.ui
+            ui.messages.guarded("recovery project", self.recovery.close, doc, lambda: files.project_now(doc, ui),
+                                self._scene_name())
         self.session.close()
+        runs.give_back_unused(self.session, self.ui)  # no frame comes after this one to do it
         for item in self.session.poll():
             if isinstance(item, Saved):
                 self.ui.messages.say(f"saved {item.path}")
@@ -432,6 +483,7 @@ class ViewerApp:
             ui.messages.guarded(f"open {path}", photos.open_dropped, self.document, self.session, ui, path)
         ui.messages.guarded("update", self.sync)
         ui.messages.guarded("keys", self.shortcuts)
+        ui.messages.guarded("recovery project", self.keep_recovery)
         step_video(ui)
         if ui.window.show_help:
             help_overlay(ui)
@@ -460,7 +512,7 @@ class ViewerApp:
         k, ctrl, shift = imgui.Key, imgui.Key.mod_ctrl.value, imgui.Key.mod_shift.value
         chord = imgui.is_key_chord_pressed
         if chord(ctrl | k.q.value):
-            quit_app()  # as the close button: before_exit stops the trainer, which saves
+            quit_app(doc, self.session, ui)  # as the close button: before_exit stops the trainer, which saves
         if doc.editor is not None and not io.want_text_input:
             if chord(ctrl | k.s.value):
                 ui.messages.guarded("save project", self.save_project)
@@ -567,6 +619,7 @@ def run(app: ViewerApp) -> int | None:
     finally:
         if not app.closed:
             app.session.close()
+            runs.give_back_unused(app.session, app.ui)
         for sig, handler in previous.items():
             signal.signal(sig, handler)
     return stopped_by[0] if stopped_by else None

@@ -5,7 +5,11 @@ and framed, a new dataset places the camera at its first view).
 
 A save never writes over a project the session did not open or save: Save project writes where the session's
 project was opened or last saved, and without one (nothing opened, or a model opened since, which starts a new
-scene) to a free name in the output folder (project.splatproj, project_2.splatproj, ...); Save project as asks.
+scene) to a free name in the output folder (project.splatproj, project_2.splatproj, ...); Save project as asks, and
+asks again before replacing a file its name reaches only once ``.splatproj`` is added.
+
+Nothing replaces unsaved edits without asking (``unless_unsaved``): opening a model or a project, starting from
+photos and quitting first ask Save / Discard / Cancel while the document has edits no project holds.
 """
 
 from __future__ import annotations
@@ -16,7 +20,9 @@ from pathlib import Path
 
 import numpy as np
 
+from app.project import with_suffix
 from app.project import save_project as write_project
+from app.viewer.state import Question
 from training.core.errors import InputError
 from training.model.formats import FILE_DIALOG_PATTERN, SUFFIX_LIST, has_model_suffix
 
@@ -43,8 +49,43 @@ def _model_opened(session, ui, path: str) -> None:
     ui.paths.model = str(path)
 
 
-def open_model(doc, session, ui, path: str) -> None:
+UNSAVED = "Unsaved edits"  # the question's title (the modal's name)
+
+
+def unless_unsaved(doc, session, ui, what: str, action) -> None:
+    """``action()`` now, or, while the document has unsaved edits, once the user has answered the question this
+    asks: Save (the project is saved first, as Ctrl+S saves it), Discard (the edits go), or Cancel (nothing
+    happens). ``what``: the action in words ("quitting", "opening fox.ply")."""
+    if not doc.unsaved():
+        action()
+        return
+
+    def save_first() -> None:
+        save_project(doc, session, ui)
+        action()
+
+    def discard_first() -> None:
+        doc.mark_saved()
+        action()
+
+    if any(q.title == UNSAVED for q in ui.questions):  # asked already (a second click on the close button)
+        return
+    where = f" to {Path(ui.project.path).name}" if ui.project.path else " as a project"
+    ui.questions.append(Question(UNSAVED, f"The scene has edits that are not saved. Save them{where} before "
+                                          f"{what}?", [("Save", save_first), ("Discard", discard_first),
+                                                       ("Cancel", None)]))
+
+
+def open_model(doc, session, ui, path: str, ask: bool = True) -> None:
+    """The model file at ``path`` as a new scene (after asking, with ``ask``, when the scene has unsaved edits)."""
     _no_run(session, "another model")
+    if ask:
+        unless_unsaved(doc, session, ui, f"opening {Path(path).name}", lambda: _open_model(doc, session, ui, path))
+    else:
+        _open_model(doc, session, ui, path)
+
+
+def _open_model(doc, session, ui, path: str) -> None:
     doc.open(path)
     _model_opened(session, ui, path)
     ui.project.path = ""  # a new scene: the next save must not replace the project opened before it
@@ -102,12 +143,22 @@ def open_project(doc, session, ui, path: str) -> None:
     """A .splatproj: its models with their edits, the dataset, the painting, the camera path, and for the window
     the stylization settings, the view's camera and the dock layout; one line for each thing it could not use."""
     _no_run(session, "a project")
+    unless_unsaved(doc, session, ui, f"opening {Path(path).name}", lambda: _open_project(doc, session, ui, path))
+
+
+def _open_project(doc, session, ui, path: str) -> None:
     opened = doc.from_project(path, ui.out_dir() / "project_models")
     project = opened.project
     for line in opened.problems:
         ui.messages.say(line)
-    if doc.editor is not None:
-        _model_opened(session, ui, str(doc.models.files[0].path))
+    # the project's first model is what the view shows and what Stylize starts from; with none shown, nothing is (the
+    # model open before is not the project's)
+    _model_opened(session, ui, str(doc.models.files[0].path) if doc.editor is not None else "")
+    if doc.editor is None:
+        ui.window.model_info = {}
+        if ui.view is not None:
+            ui.view.clear(0)
+            ui.view.clear(1)
     ui.paths.data = doc.dataset.path if doc.dataset is not None else ui.paths.data
     ui.paths.style = doc.painting.path if doc.painting is not None else ui.paths.style
     if project.stylize:
@@ -120,6 +171,23 @@ def open_project(doc, session, ui, path: str) -> None:
     ui.messages.say(f"opened project {path}")
 
 
+def open_recovered(doc, session, ui, path: str, scene: str, adopt) -> None:
+    """A recovery project (recovery.py) of a window that closed with unsaved edits: opened as a project, then the
+    scene's own project is where the next save goes (``scene``: its path; a model or nothing: a free name), and its
+    edits are unsaved until then. ``adopt(path)``: this window's recovery takes it over."""
+    _no_run(session, "the recovered edits")
+
+    def recovered() -> None:
+        _open_project(doc, session, ui, path)
+        ui.project.path = scene if scene.endswith(".splatproj") else ""
+        doc.mark_unsaved()
+        adopt(Path(path))
+        ui.messages.say("opened the unsaved edits kept when splatstyler last closed: save them (Ctrl+S) to keep them"
+                        + (f" in {scene}" if ui.project.path else ""))
+
+    unless_unsaved(doc, session, ui, "opening the recovered edits", recovered)
+
+
 def free_project_path(out: Path) -> Path:
     """``out/project.splatproj``, or ``project_2``, ``project_3``...: the first name no file has (a second viewer
     session writing to the same folder keeps the first one's project)."""
@@ -130,38 +198,53 @@ def free_project_path(out: Path) -> Path:
     return candidate
 
 
-def save_project(doc, session, ui, path: str | None = None, layout: str | None = None) -> Path:
-    """The session as a project file (atomically): to ``path``, or where it was opened or saved, or a free name
-    in the output folder (``free_project_path``). ``layout``: the dock layout (default: imgui's, as it is now)."""
+def project_now(doc, ui, layout: str | None = None):
+    """The session as a Project: the document with the window's parts (the stylization settings, the view's camera,
+    the dock layout: imgui's as it is now unless ``layout`` is given)."""
     from app.camera_path import keyframe_from
 
     if layout is None:
         from imgui_bundle import imgui
 
         layout = imgui.save_ini_settings_to_memory()
-    named = bool(path or ui.project.path)
-    target = Path(path or ui.project.path or free_project_path(ui.out_dir()))
     view = ui.view
     camera, distance, up = None, 1.0, np.array([0.0, -1.0, 0.0])
     if view is not None and view.camera is not None:
         w, h = max(ui.window.view_rect[2], 1), max(ui.window.view_rect[3], 1)
         camera, distance, up = keyframe_from(view.camera.camera(w, h)), view.camera.target_distance, view.camera.up
     stylize = dataclasses.asdict(ui.training.stylize) if ui.training.stylize is not None else {}
-    project = doc.to_project(stylize=stylize, camera=camera, camera_distance=distance, up=up, layout=layout)
-    written = write_project(target, project)
+    return doc.to_project(stylize=stylize, camera=camera, camera_distance=distance, up=up, layout=layout)
+
+
+def save_project(doc, session, ui, path: str | None = None, layout: str | None = None) -> Path:
+    """The session as a project file (atomically): to ``path``, or where it was opened or saved, or a free name
+    in the output folder (``free_project_path``). ``layout``: the dock layout (default: imgui's, as it is now)."""
+    named = bool(path or ui.project.path)
+    target = Path(path or ui.project.path or free_project_path(ui.out_dir()))
+    written = write_project(target, project_now(doc, ui, layout))
     # embedded models keep their member names: the file written holds them from now on
     doc.project_source = written
+    doc.mark_saved()
     ui.project.path = str(written)
     ui.messages.say(f"saved project {written}" + ("" if named else " (File > Save project as... chooses the name)"))
     return written
 
 
 def save_project_as(doc, session, ui) -> Path | None:
-    """File > Save project as: a path from the system's save dialog (which asks before replacing a file), then
-    saved there; None when the dialog was cancelled."""
+    """File > Save project as: a path from the system's save dialog (which asks before replacing the file it was
+    given), then saved there; None when the dialog was cancelled. A name typed without ``.splatproj`` gets it, and
+    when that names a file already there, the window asks before replacing it (the dialog asked about another)."""
     start = ui.project.path or str(free_project_path(ui.out_dir()))
     path = choose_file("Save project as", DIALOG_FILTERS["project"], save=True, start=str(Path(start).absolute()))
-    return save_project(doc, session, ui, path) if path else None
+    if not path:
+        return None
+    target = with_suffix(path)
+    if target != Path(path) and target.exists():
+        ui.questions.append(Question("Replace project", f"{target} exists. Replace it?",
+                                     [("Replace", lambda: save_project(doc, session, ui, str(target))),
+                                      ("Cancel", None)]))
+        return None
+    return save_project(doc, session, ui, str(target))
 
 
 def dialogs_available() -> bool:

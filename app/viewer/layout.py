@@ -15,7 +15,7 @@ from pathlib import Path
 
 from imgui_bundle import hello_imgui, imgui
 
-from app.viewer.files import open_from_dialog, save_project, save_project_as
+from app.viewer.files import open_from_dialog, save_project, save_project_as, unless_unsaved
 from app.viewer.live.photos import choose_photos_folder
 from app.viewer.live.sfm_run import phase_time_left
 from app.viewer.panels import edit_panel, export_panel, gizmo_panel, select_tools_panel
@@ -90,6 +90,7 @@ def configure(rp, doc, session, ui) -> None:
     rp.docking_params.dockable_windows = dockable_windows(doc, session, ui)
     rp.callbacks.show_status = lambda: status_bar(session, ui)
     rp.callbacks.show_menus = lambda: menus(doc, session, ui)
+    rp.callbacks.confirm_exit = lambda: confirm_exit(doc, session, ui)
     ini = layout_file()
     ini.parent.mkdir(parents=True, exist_ok=True)
     rp.ini_folder_type = hello_imgui.IniFolderType.absolute_path
@@ -162,7 +163,7 @@ def menus(doc, session, ui) -> None:
             guarded("save project as", save_project_as, doc, session, ui)
         imgui.separator()
         if imgui.menu_item("Quit", "Ctrl+Q", False)[0]:
-            quit_app()
+            quit_app(doc, session, ui)
         imgui.end_menu()
     if imgui.begin_menu("View"):
         if imgui.menu_item("Reset layout", "", False)[0]:
@@ -172,13 +173,65 @@ def menus(doc, session, ui) -> None:
 
 
 def floating_windows(doc, session, ui) -> None:
-    """The windows over the layout: the New from photos dialog, while it is open."""
+    """The windows over the layout: the New from photos dialog, while it is open, and the question the window asks
+    (over everything, as a modal)."""
     ui.messages.guarded("new from photos", photos_dialog, doc, session, ui)
+    question_modal(ui)
 
 
-def quit_app() -> None:
-    """File > Quit and Ctrl+Q: as the window's close button (the trainer stops and saves, the layout is kept)."""
+def question_modal(ui) -> None:
+    """The first of ``ui.questions`` as a modal: its text and a button per answer; an answer runs its action (a
+    failure is one line in the window) and the question goes."""
+    if not ui.questions:
+        return
+    q = ui.questions[0]
+    if not imgui.is_popup_open(q.title):
+        imgui.open_popup(q.title)
+    io = imgui.get_io()
+    imgui.set_next_window_pos(imgui.ImVec2(io.display_size.x / 2, io.display_size.y / 2), imgui.Cond_.appearing,
+                              imgui.ImVec2(0.5, 0.5))
+    opened, _ = imgui.begin_popup_modal(q.title, None, imgui.WindowFlags_.always_auto_resize)
+    if not opened:
+        return
+    imgui.push_text_wrap_pos(imgui.get_font_size() * 32)
+    imgui.text_wrapped(q.text)
+    imgui.pop_text_wrap_pos()
+    imgui.spacing()
+    for i, (label, action) in enumerate(q.answers):
+        if i:
+            imgui.same_line()
+        if imgui.button(label):
+            imgui.close_current_popup()
+            ui.questions.remove(q)
+            if action is not None:
+                ui.messages.guarded(label.lower(), action)
+    imgui.end_popup()
+
+
+def quit_app(doc, session, ui) -> None:
+    """File > Quit and Ctrl+Q: as the window's close button (the trainer stops and saves, the layout is kept),
+    once unsaved edits are saved or discarded (``unless_unsaved``)."""
+    unless_unsaved(doc, session, ui, "quitting", exit_now)
+
+
+def exit_now() -> None:
     hello_imgui.get_runner_params().app_shall_exit = True
+
+
+def confirm_exit(doc, session, ui) -> bool:
+    """The window's close button (and Alt-F4): True to close now; with unsaved edits False, and the question is
+    asked in the next frame (its Save and Discard close the window). A signal (SIGTERM, Ctrl-C) closes without
+    asking: the recovery project keeps the edits then."""
+    if not doc.unsaved():
+        return True
+    quit_app(doc, session, ui)
+    return False
+
+
+def window_title(doc, ui) -> str:
+    """splatstyler, the project (or the model) the scene is, and "*" while it has unsaved edits."""
+    name = Path(ui.project.path).name if ui.project.path else Path(ui.paths.model).name if ui.paths.model else ""
+    return "splatstyler" + (f" - {name}" if name else "") + (" *" if doc.unsaved() else "")
 
 
 KEYS = [("left drag", "orbit"), ("right / middle drag", "pan"), ("wheel", "zoom"), ("W A S D", "fly"),
@@ -186,7 +239,7 @@ KEYS = [("left drag", "orbit"), ("right / middle drag", "pan"), ("wheel", "zoom"
         ("space", "pause / resume training"), ("Ctrl+Z / Ctrl+Y", "undo / redo an edit"),
         ("Delete", "delete the selection"), ("G / T / Y", "gizmo: move / turn / scale (again: off)"),
         ("Ctrl+S", "save the project"), ("Ctrl+Shift+S", "save the project as..."),
-        ("Ctrl+Q", "quit (a run saves, as on closing the window)"),
+        ("Ctrl+Q", "quit (a run saves, as on closing the window; unsaved edits: Save, Discard or Cancel)"),
         ("H or F1", "this help")]
 
 

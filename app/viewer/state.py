@@ -172,6 +172,7 @@ class TrainingState:
     pause_at: int = 0
     base_model: str = ""  # the model as opened or reconstructed: what a stylization starts from
     runs: list[Path] = field(default_factory=list)  # each stylization's saved model, in order
+    claimed: list[Path] = field(default_factory=list)  # the run folders the last run made as it started (runs.py)
     continue_last_run: bool = False
     pending: list = field(default_factory=list)  # (what, Future, on done) handed to the running trainer
     shown_step: int | None = None  # the trainer step whose model the view shows
@@ -204,6 +205,16 @@ class PhotosState:
 class ProjectState:
     path: str = ""  # the project file this session was opened from or last saved to
     layout_to_load: str = ""  # a project's dock layout, applied before the next frame
+
+
+@dataclass
+class Question:
+    """A question the window asks before it goes on (layout.py draws it as a modal): ``title`` (the modal's name),
+    ``text``, and the answers in order, each a button label and what it does (None: nothing, the question goes)."""
+
+    title: str
+    text: str
+    answers: list[tuple[str, Any]] = field(default_factory=list)
 
 
 @dataclass
@@ -255,6 +266,7 @@ class WindowState:
     style_covers: str = ""
     style_settings_h: float = 0.0  # the Style panel's height below the painting, last frame (the painting yields)
     fixed_folded: bool = False  # the Style panel's "Fixed at the start" was last folded for a run (opened after)
+    title: str = "splatstyler"  # the window's title as last set ("*" at its end while edits are unsaved)
 
 
 @dataclass
@@ -277,6 +289,7 @@ class Ui:
     window: WindowState = field(default_factory=WindowState)
     textures: StyleTextures = field(default_factory=StyleTextures)
     requests: ViewRequests = field(default_factory=ViewRequests)
+    questions: list[Question] = field(default_factory=list)  # asked one at a time, the first shown
     view: Any = None  # view3d.View3D
 
     def out_dir(self) -> Path:

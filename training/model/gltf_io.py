@@ -42,6 +42,7 @@ import torch
 
 from training.core.atomic_write import atomic_open
 from training.core.errors import InputError
+from training.core.json_numbers import NumberOutOfRange, parse_json
 from training.core.memory import check_fits
 from training.model.axes import MODEL_AXES, convert_axes
 from training.model.gaussians import Gaussians, num_sh_coeffs
@@ -54,6 +55,8 @@ FLOAT, UNSIGNED_BYTE, ARRAY_BUFFER, POINTS = 5126, 5121, 34962, 0
 MAX_SH_DEGREE = 3
 _COMPONENTS = {5120: "<i1", 5121: "<u1", 5122: "<i2", 5123: "<u2", 5125: "<u4", 5126: "<f4"}
 _WIDTH = {"SCALAR": 1, "VEC2": 2, "VEC3": 3, "VEC4": 4}
+# each attribute's accessor type, as the extension defines it (its SH coefficients are all VEC3)
+_ATTRIBUTE_TYPES = {"POSITION": "VEC3", "ROTATION": "VEC4", "SCALE": "VEC3", "OPACITY": "SCALAR"}
 _NUMBER = "{: .8e}"  # 9 significant digits give float32 back exactly; a fixed width keeps the JSON's size known
 _IDENTITY = [1.0, 0.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 0.0, 1.0]
 GLTF_AXES = "LUF"  # glTF 2.0: +Y up, the asset's front facing +Z, right-handed (x to the asset's left)
@@ -166,8 +169,10 @@ def _chunks(path: Path, raw: bytes) -> tuple[dict, memoryview]:
     if not found or found[0][0] != CHUNK_JSON:
         raise InputError(path, "GLB file has no JSON chunk first")
     try:
-        doc = json.loads(bytes(found[0][1]).decode("utf-8"))
-    except (UnicodeDecodeError, json.JSONDecodeError) as exc:
+        doc = parse_json(bytes(found[0][1]).decode("utf-8"))
+    except NumberOutOfRange as exc:
+        raise InputError(path, f"the GLB's JSON chunk {exc}") from None
+    except (UnicodeDecodeError, ValueError) as exc:
         raise InputError(path, f"the GLB's JSON chunk is not valid JSON ({exc})") from None
     except RecursionError:
         raise InputError(path, "the GLB's JSON chunk is nested too deeply to read (damaged, or made to exhaust "
@@ -282,7 +287,12 @@ class _Plan:
                                        f"{len(names)} coefficients or none)")
             needed += names
             degree += 1
-        counts = {a: _accessor_shape(path, doc, attrs[a], a)[3] for a in needed}
+        shapes = {a: _accessor_shape(path, doc, attrs[a], a) for a in needed}
+        for a, (acc, _, width, _) in shapes.items():
+            kind = _ATTRIBUTE_TYPES.get(a.removeprefix(f"{EXTENSION}:"), "VEC3")  # every SH coefficient is VEC3
+            if width != _WIDTH[kind]:
+                raise InputError(path, f"{a}: accessor {attrs[a]} is {acc['type']}; {EXTENSION} needs {kind}")
+        counts = {a: shape[3] for a, shape in shapes.items()}
         if len(set(counts.values())) != 1:
             raise InputError(path, f"{EXTENSION} attributes differ in count: {counts}")
         ext = _object(path, prim["extensions"][EXTENSION], f"{where} {EXTENSION}")
@@ -294,12 +304,32 @@ class _Plan:
 
 
 def _check_nodes(path: Path, doc: dict) -> None:
+    """Refuse a transform on any node the splats hang under: a mesh's node and every node above it (a parent's
+    transform moves its children's meshes as much as their own does, glTF 2.0 "Transformations"). Nodes that lead
+    to no mesh (a camera, a light) may move freely."""
     shapes = {"matrix": 16, "translation": 3, "rotation": 4, "scale": 3}
     neutral = {"matrix": _IDENTITY, "translation": [0, 0, 0], "rotation": [0, 0, 0, 1], "scale": [1, 1, 1]}
-    for i, node in enumerate(_array(path, doc, "nodes", "glTF")):
-        node = _object(path, node, f"glTF node {i}")
+    nodes = [_object(path, node, f"glTF node {i}") for i, node in enumerate(_array(path, doc, "nodes", "glTF"))]
+    parent: dict[int, int] = {}
+    for i, node in enumerate(nodes):
+        for child in _array(path, node, "children", f"glTF node {i}"):
+            if isinstance(child, bool) or not isinstance(child, int) or not 0 <= child < len(nodes):
+                raise InputError(path, f"glTF node {i} has child {child!r}, which does not exist")
+            if child in parent or child == i:
+                raise InputError(path, f"glTF node {child} has more than one parent (the node tree is a tree)")
+            parent[child] = i
+    carrying: set[int] = set()  # the mesh nodes and every node above them
+    for i, node in enumerate(nodes):
         if "mesh" not in node:
             continue
+        at = i
+        while at not in carrying:
+            carrying.add(at)
+            if at not in parent:
+                break
+            at = parent[at]
+    for i in sorted(carrying):
+        node = nodes[i]
         for key, size in shapes.items():
             if key not in node:
                 continue
@@ -308,8 +338,9 @@ def _check_nodes(path: Path, doc: dict) -> None:
                     or not all(isinstance(v, (int, float)) and not isinstance(v, bool) for v in value):
                 raise InputError(path, f"glTF node {i} '{key}' is not {size} numbers")
             if [float(v) for v in value] != [float(v) for v in neutral[key]]:
-                raise InputError(path, f"glTF node {i} places its splats with a transform; only untransformed "
-                                       "splat meshes are read")
+                what = "places its splats" if "mesh" in node else "moves the splats of a node below it"
+                raise InputError(path, f"glTF node {i} {what} with a transform ('{key}'); only untransformed splat "
+                                       "meshes are read")
 
 
 def _splat_primitives(path: Path, doc: dict) -> list[tuple[dict, str]]:

@@ -200,7 +200,8 @@ def _read_vertex_table(path: Path, fmt: str, elements: list[_Element], start: in
             raise InputError(path, f"PLY file is truncated: header declares {vertex.count} vertices, "
                                    f"the data holds {max(0, len(tokens) - skip) // max(1, len(vertex.properties))}")
         try:
-            values = np.array(tokens[skip: skip + need], dtype=np.float64).reshape(vertex.count, -1)
+            values = np.array(tokens[skip: skip + need], dtype=np.float64).reshape(vertex.count,
+                                                                                 len(vertex.properties))
         except ValueError:
             raise InputError(path, "PLY ASCII data holds a value that is not a number") from None
         table = np.empty(vertex.count, dtype=[(n, t) for n, t in vertex.properties])

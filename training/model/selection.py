@@ -71,8 +71,12 @@ def load_mask(path: str | Path, n: int) -> np.ndarray:
         except (ValueError, UnicodeDecodeError):
             raise InputError(path, "a .txt selection holds whitespace-separated Gaussian indices; found something "
                                    "else") from None
-        if not np.all(values == np.round(values)):
+        if not np.all(values == np.round(values)):  # NaN is no whole number, and infinity is checked below
             raise InputError(path, "selection indices must be whole numbers")
+        outside = values[(values < 0) | (values >= n)]
+        if len(outside):  # before the cast: 1e19 or inf would wrap to some int64, with numpy's warnings
+            raise InputError(path, f"selection index {outside[0]:g} is outside 0..{n - 1} (the model has {n} "
+                                   "Gaussians)")
         return indices_to_mask(values.astype(np.int64), n, path)
     if path.suffix.lower() != ".npy":
         raise InputError(path, "a selection file is .npy (bool mask or indices) or .txt (indices)")

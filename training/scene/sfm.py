@@ -60,6 +60,7 @@ DEFAULT_MAX_SIZE = 1600  # the photos' long side, at most (px)
 DEFAULT_MAX_FEATURES = 8192  # SIFT features per photo, at most
 REPORT_NAME = "sfm_report.json"
 PARTIAL_SUFFIX = ".sfm-partial"
+LOCK_NAME = ".sfm-lock"  # in the partial folder: held (flock) by the run building it
 # Fewer points than this is not a scene to reconstruct: the depth regularizer aligns each view's depth to the SfM
 # points it sees and needs at least 10 of them in a view (training/reconstruct/depth_targets.py), and the Gaussians
 # start from the points, where the presets' own random start uses 5000 or more; a hundred points spread over a
@@ -223,24 +224,21 @@ def run_sfm(photos_dir: str | Path, output: str | Path, max_size: int = DEFAULT_
     if output.resolve() == photos_dir.resolve():
         raise InputError(output, "output must not be the photos folder")
 
+    make_output_dir(output.parent)
+    partial, lock = _claim_partial(output, log)
     previous_log_level = pycolmap.logging.minloglevel
     if not verbose:
         pycolmap.logging.minloglevel = 3  # COLMAP's own lines would drown ours; its failures reach us as results
-    make_output_dir(output.parent)
-    partial = partial_folder(output)
-    if partial.exists():
-        log(f"      removing {partial}, left by an interrupted run")
-        shutil.rmtree(partial)
     work = partial / ".work"
-    work.mkdir(parents=True)
     seconds: dict[str, float] = {}
     report = _Reporter(progress_to, progress)
     stop = _Stop(cancel)
     try:
+        work.mkdir()
         fingerprint = make_fingerprint(photos=photos_fingerprint(photos), settings=settings)
         image_dir = work / "photos"
         t = time.perf_counter()
-        _stage_photos(photos, image_dir, max_size, log, report, stop)
+        staged = _stage_photos(photos, image_dir, max_size, log, report, stop)
         seconds["copy"] = time.perf_counter() - t
 
         database = work / "database.db"
@@ -259,12 +257,13 @@ def run_sfm(photos_dir: str | Path, output: str | Path, max_size: int = DEFAULT_
         _match_pairs(database, matcher, work, report, stop)
         seconds["matching"] = time.perf_counter() - t
 
-        names = sorted(p.name for p in image_dir.iterdir())
+        names = sorted(staged)
         no_overlap = photos_without_overlap(database, names)
         if len(no_overlap) == len(names):
             raise InputError(photos_dir, f"none of the {len(names)} photos overlaps any other (no pair shares "
                                          f"{MIN_PAIR_INLIERS} verified matches), so there is no good initial image "
                                          "pair: the photos need texture and overlapping views of one scene")
+        no_overlap = [staged[n] for n in no_overlap]  # named as the user named them from here on
         if no_overlap:
             log(f"      {len(no_overlap)} photos share no verified matches with any other and cannot be placed: "
                 f"{name_list(no_overlap)}")
@@ -278,8 +277,8 @@ def run_sfm(photos_dir: str | Path, output: str | Path, max_size: int = DEFAULT_
             raise InputError(photos_dir, "structure from motion found no model: no good initial image pair, even "
                                          "with relaxed initialisation (the photos need texture and overlapping "
                                          "views; try more photos)")
-        placed = {reconstruction.image(i).name for i in reconstruction.reg_image_ids()}
-        unregistered = [n for n in names if n not in placed and n not in no_overlap]
+        placed = {staged[reconstruction.image(i).name] for i in reconstruction.reg_image_ids()}
+        unregistered = [staged[n] for n in names if staged[n] not in placed and staged[n] not in no_overlap]
         if unregistered:
             log(f"      {len(unregistered)} photos overlap others but could not be placed: "
                 f"{name_list(unregistered)}")
@@ -317,6 +316,7 @@ def run_sfm(photos_dir: str | Path, output: str | Path, max_size: int = DEFAULT_
         with atomic_open(partial / REPORT_NAME, "w") as f:  # the done marker, last
             json.dump(quality, f, indent=2)
         _move_into_place(partial, output)
+        (output / LOCK_NAME).unlink(missing_ok=True)  # moved with the folder when it was renamed whole
         return result
     except Cancelled:
         if stop.user():
@@ -326,6 +326,7 @@ def run_sfm(photos_dir: str | Path, output: str | Path, max_size: int = DEFAULT_
     finally:
         report.close()
         shutil.rmtree(partial, ignore_errors=True)
+        os.close(lock)
         pycolmap.logging.minloglevel = previous_log_level
 
 
@@ -480,6 +481,35 @@ def _match_pairs(database: Path, matcher: str, work: Path, report: _Reporter, st
         report.to(i + size)
 
 
+def _claim_partial(output: Path, log: Callable[[str], None]) -> tuple[Path, int]:
+    """Make ``output``'s partial folder for this run and lock it (an open file descriptor holding an exclusive
+    ``flock`` on its ``LOCK_NAME``, released when the run ends or its process dies): a second run on the same output
+    sees the lock held and stops in one line instead of deleting the first one's work; a partial folder whose lock is
+    free was left by an interrupted run and is removed. The folder is made under a temporary name with its lock
+    already held and renamed into place, so it is never seen without one."""
+    import tempfile
+
+    from training.core.file_lock import held, hold
+
+    partial = partial_folder(output)
+    while True:
+        claim = Path(tempfile.mkdtemp(prefix=f".{output.name}.", suffix=".sfm-claim", dir=output.parent))
+        lock = hold(claim / LOCK_NAME)  # a new file: nobody else holds it
+        try:
+            os.rename(claim, partial)  # refused while another partial folder (which holds a lock file) is there
+            return partial, lock
+        except OSError:
+            os.close(lock)
+            shutil.rmtree(claim, ignore_errors=True)
+            if not partial.exists():
+                continue
+        if held(partial / LOCK_NAME):
+            raise InputError(output, f"another structure from motion is writing this scene now ({partial} is "
+                                     "held by a running process); wait for it, or choose another output folder")
+        log(f"      removing {partial}, left by an interrupted run")
+        shutil.rmtree(partial, ignore_errors=True)
+
+
 def _move_into_place(partial: Path, output: Path) -> None:
     """Rename the finished ``partial`` to ``output``: at once when ``output`` is absent or an empty folder; into an
     existing folder entry by entry, the report (the done marker) last."""
@@ -494,13 +524,27 @@ def _move_into_place(partial: Path, output: Path) -> None:
 
 
 def _stage_photos(photos: list[Path], image_dir: Path, max_size: int, log: Callable[[str], None],
-                  report: _Reporter | None = None, stop: _Stop | None = None) -> None:
+                  report: _Reporter | None = None, stop: _Stop | None = None) -> dict[str, str]:
     """Copy the photos for COLMAP: byte for byte when they fit in ``max_size`` and need no EXIF rotation (COLMAP
-    would not apply it, our loader would), else decoded, oriented, shrunk and re-encoded."""
+    would not apply it, our loader would), else decoded, oriented, shrunk and re-encoded. Returns each staged file's
+    name and the name of the photo it came from: every photo gets a name of its own (a.png and a.tif, or b.jpeg and
+    b.jpg re-encoded, would both be a.png, b.jpg), told apart by the original's suffix (a_tif.png)."""
     report = report or _Reporter(None, False)
     image_dir.mkdir(parents=True)
     log(f"[1/5] preparing {len(photos)} photos (long side at most {max_size} px)")
     report.start("photos", len(photos))
+    staged: dict[str, str] = {}
+    taken: set[str] = set()  # case-folded: a.JPG and a.jpg are one file on some file systems
+
+    def unique(name: str, photo: Path) -> str:
+        stem, ext = name[: -len(Path(name).suffix) or None], Path(name).suffix
+        candidate, n = name, 1
+        while candidate.casefold() in taken:
+            n += 1
+            candidate = f"{stem}_{photo.suffix.lstrip('.')}{'' if n == 2 else f'_{n - 1}'}{ext}"
+        taken.add(candidate.casefold())
+        return candidate
+
     for done, photo in enumerate(photos, 1):
         if stop is not None:
             stop.check()
@@ -508,15 +552,19 @@ def _stage_photos(photos: list[Path], image_dir: Path, max_size: int, log: Calla
         if header.orientation == 1 and max(header.width, header.height) <= max_size and \
                 photo.suffix.lower() in (".png", ".jpg", ".jpeg"):
             read_image_with_alpha(photo)  # fail now, with the file's name, if it is truncated
-            shutil.copyfile(photo, image_dir / photo.name)
+            name = unique(photo.name, photo)
+            shutil.copyfile(photo, image_dir / name)
         else:
             rgb, _ = read_image_with_alpha(photo)
             scale = min(1.0, max_size / max(header.width, header.height))
             if scale < 1.0:
                 rgb = resize_image(rgb, max(1, round(header.width * scale)), max(1, round(header.height * scale)))
             ext = ".jpg" if photo.suffix.lower() in (".jpg", ".jpeg") else ".png"
-            write_image(image_dir / (photo.stem + ext), rgb)
+            name = unique(photo.stem + ext, photo)
+            write_image(image_dir / name, rgb)
+        staged[name] = photo.name
         report.to(done)
+    return staged
 
 
 def name_list(names: list[str], limit: int = 8) -> str:

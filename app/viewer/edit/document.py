@@ -16,7 +16,12 @@ from the file's side, W^-1 D W.
 A project (app/project.py) is ``to_project()`` and ``from_project()``: one entry per run of editor rows from one
 part, with the file as opened (its hash then, or the project's own reference with its embedded member), its rows
 kept, selected and hidden, the part's transform and the colour edits; models of an opened project that the viewer
-cannot show are carried and written back unchanged.
+cannot show are carried and written back unchanged. Editing a running trainer's model (``edit_live``) sets the
+opened scene aside, not away: a save meanwhile writes that scene, since the run's model is the run's to save.
+
+Unsaved edits (``unsaved()``): the scene changed since it was opened or saved (``mark_saved``): an edit step of its
+editor, its original, or its camera path. Editing a running trainer's model is not one: those deletions are the
+run's. The window asks before anything replaces unsaved edits, and keeps a recovery project of them.
 """
 
 from __future__ import annotations
@@ -115,7 +120,14 @@ class Document:
         self.camera_path = CameraPath()
         self.carried: list[ModelEntry] = []  # models of an opened project not shown: saved back unchanged
         self.project_source: Path | None = None  # the project file embedded models are copied from on saving
+        # the viewer's own copies of the opened project's embedded models, by member name: a save reads them when
+        # the project file has moved or gone
+        self.member_copies: dict[str, Path] = {}
+        # (editor, source, models) of the opened scene while the editor edits a running trainer's model
+        self._set_aside: tuple | None = None
         self._shown: tuple = (None, None, None)  # (dataset, editor, world) the shown cameras were made for
+        self._saved: tuple = ()  # the scene as last opened or saved (``mark_saved``)
+        self.mark_saved()
 
     # ------------------------------------------------------------------ what is shown
     @property
@@ -135,6 +147,29 @@ class Document:
             len(self.models.parts) > 1 or len(self.editor.index) != len(self.source)
             or bool(self.editor.hidden.any()))
 
+    # ------------------------------------------------------------------ unsaved edits
+    def _scene(self) -> tuple:
+        """(editor, source, models) of the scene the user opened: the editor's, or the ones set aside while the
+        editor edits a running trainer's model."""
+        return self._set_aside if self._set_aside is not None else (self.editor, self.source, self.models)
+
+    def _state(self) -> tuple:
+        editor = self._scene()[0]
+        return editor, None if editor is None else editor.version, self.original, self.camera_path.to_dict()
+
+    def mark_saved(self) -> None:
+        """The scene as it is now is saved (or was just opened, or its edits were discarded)."""
+        self._saved = self._state()
+
+    def mark_unsaved(self) -> None:
+        """The scene as it is now is in no project of the user's (edits recovered after a crash)."""
+        self._saved = (object(), None, None, None)
+
+    def unsaved(self) -> bool:
+        """The scene has edits no project holds: an edit step, an original paired, the camera path changed."""
+        (editor, version, original, path), saved = self._state(), self._saved
+        return not (editor is saved[0] and version == saved[1] and original is saved[2] and path == saved[3])
+
     # ------------------------------------------------------------------ opening
     def open(self, path) -> None:
         """The model file at ``path`` as the scene's only model (the history starts afresh). The scene is no
@@ -142,13 +177,15 @@ class Document:
         p = Path(path)
         g = read_model(p)
         self._open_read(p, g, FileRef(p, file_sha256(p)))
-        self.carried, self.project_source = [], None
+        self.carried, self.project_source, self.member_copies = [], None, {}
+        self.mark_saved()
 
     def _open_read(self, path: Path, g, ref: FileRef) -> None:
         self.source = g
         self.models = SceneModels.opened(path, len(g), ref)
         self.editor = Editor(snapshot_of(g, version=-int(time.time() * 1000) % 1_000_000_000))
         self.live = False
+        self._set_aside = None
 
     def new_scene(self) -> None:
         """An empty scene (what photos are made into): no model, dataset, camera path or project; the painting
@@ -174,7 +211,10 @@ class Document:
 
     def edit_live(self, snapshot, on_keep) -> None:
         """Select and delete in the model a running trainer trains (``snapshot``, its model now):
-        ``on_keep(keep, structure_version)`` hands each deletion to it (it cannot be undone)."""
+        ``on_keep(keep, structure_version)`` hands each deletion to it (it cannot be undone). The opened scene is
+        set aside, and is what a project saved meanwhile holds."""
+        if self._set_aside is None and self.has_ledger:
+            self._set_aside = (self.editor, self.source, self.models)
         self.editor = Editor(snapshot, on_keep=on_keep)
         self.source = None
         self.models = SceneModels()
@@ -414,9 +454,12 @@ class Document:
 
     def paired(self) -> bool:
         """An original is paired with the first model file, row for row."""
+        return self.has_ledger and self._paired_with(self.models)
+
+    def _paired_with(self, models: SceneModels) -> bool:
         o = self.original
-        return (o is not None and self.has_ledger and o.paired_with == self.models.files[0].path
-                and len(o.sh) == self.file_row_count())
+        return (o is not None and bool(models.parts) and o.paired_with == models.files[0].path
+                and len(o.sh) == len(models.parts[0].rows))
 
     def pair_original(self, path, ref: FileRef | None = None) -> None:
         """Read ``path`` as the opened model's original: same rows (count) and SH degree, else one line.
@@ -440,23 +483,25 @@ class Document:
     def to_project(self, stylize: dict | None = None, camera=None, camera_distance: float = 1.0,
                    up=(0.0, -1.0, 0.0), layout: str = "") -> Project:
         """The document as a Project, with the window's own parts given: the stylization settings (StylizeConfig
-        fields), the view's camera (a pinhole camera, or None), the orbit distance and up, the dock layout."""
+        fields), the view's camera (a pinhole camera, or None), the orbit distance and up, the dock layout. While
+        the editor edits a running trainer's model, the project is the opened scene set aside."""
+        editor, source, scene = self._scene()
         models = []
-        if self.editor is not None and self.has_ledger:
-            models += self._entries()
+        if editor is not None and source is not None and scene.parts:
+            models += self._entries(editor, scene)
         models += list(self.carried)
+        world = np.eye(4) if editor is None else editor.extras.get(WORLD, np.eye(4))
         dataset = FileRef(Path(self.dataset.path)) if self.dataset is not None else None
         painting = FileRef(Path(self.painting.path)) if self.painting is not None else None
         return Project(models=models, dataset=dataset, painting=painting, stylize=dict(stylize or {}),
                        camera=camera, camera_distance=camera_distance, camera_path=self.camera_path.copy(),
-                       layout=layout, up=np.asarray(up, float), world=self.world, source=self.project_source)
+                       layout=layout, up=np.asarray(up, float), world=world, source=self.project_source,
+                       copies=dict(self.member_copies))
 
-    def _entries(self) -> list[ModelEntry]:
+    def _entries(self, ed: Editor, models: SceneModels) -> list[ModelEntry]:
         """One entry per run of the editor's rows from one part, in the editor's order (a selection moved out of
         the middle of a model is a run of its own between two runs of the rest), with the part's transform; the
         first file has the editor's colour edits and the paired original, the others what their entries had."""
-        ed = self.editor
-        models = self.models
         part_ids = models.part_of(ed.index)
         bounds = np.flatnonzero(np.diff(part_ids)) + 1
         entries = []
@@ -466,8 +511,8 @@ class Document:
             part = models.parts[part_ids[at[0]]]
             f = models.files[part.file]
             if part.file == 0:
-                edits = self.colour
-                original = self.original.ref if self.paired() else f.original
+                edits = ed.extras.get(COLOUR, ColourEdits())
+                original = self.original.ref if self._paired_with(models) else f.original
             else:
                 edits, original = f.colour, f.original
             entries.append(ModelEntry(_copy(f.ref), f.name, _copy(original),
@@ -490,14 +535,15 @@ class Document:
         fresh.dataset, fresh.cameras, fresh.painting = self.dataset, self.cameras, self.painting
         opened = fresh._read_project(path, models_folder)
         for name in ("editor", "source", "models", "live", "original", "dataset", "cameras", "painting",
-                     "camera_path", "carried", "project_source"):
+                     "camera_path", "carried", "project_source", "member_copies", "_set_aside"):
             setattr(self, name, getattr(fresh, name))
+        self.mark_saved()
         return opened
 
     def _read_project(self, path, models_folder: Path) -> Opened:
         project, problems = open_project(path)
         opened = Opened(project, list(problems))
-        self.carried, self.project_source = [], project.source
+        self.carried, self.project_source, self.member_copies = [], project.source, {}
         for entry in project.models:
             try:
                 read = self._entry_model(entry, project, models_folder)
@@ -509,6 +555,7 @@ class Document:
                 self.carried.append(entry)
                 opened.problems.append(f"{entry.file.path}: model '{entry.name}' is in the project but not shown "
                                        f"({read})")
+                self._keep_copies(entry, project, models_folder)
             else:
                 self._join(entry, project, models_folder, opened.problems, *read)
         if self.editor is not None:
@@ -532,8 +579,7 @@ class Document:
                     and f.ref.embedded == entry.file.embedded), None)
         path = entry.file.path if fid is None else self.models.files[fid].path
         if fid is None and entry.file.embedded is not None:  # the viewer opens files: embedded ones are copied out
-            path = extract_member(project.source, entry.file.embedded,
-                                  embedded_copy(models_folder, project.source, entry.file.embedded))
+            path = self._copy_member(project, entry.file.embedded, models_folder)
         g = read_model(path)
         why = colour_problem(entry, len(g))
         if why is None and entry.kept is not None and len(entry.kept) and int(entry.kept.max()) >= len(g):
@@ -591,9 +637,24 @@ class Document:
     def _pair_project_original(self, ref: FileRef, models_folder: Path, project: Project) -> None:
         path = ref.path
         if ref.embedded is not None:
-            path = extract_member(project.source, ref.embedded, embedded_copy(models_folder, project.source,
-                                                                              ref.embedded))
+            path = self._copy_member(project, ref.embedded, models_folder)
         self.pair_original(path, ref=_copy(ref))
+
+    def _copy_member(self, project: Project, member: str, models_folder: Path) -> Path:
+        """The viewer's copy of an embedded model (made now), noted for saving when the project file is gone."""
+        path = extract_member(project.source, member, embedded_copy(models_folder, project.source, member))
+        self.member_copies[member] = path
+        return path
+
+    def _keep_copies(self, entry: ModelEntry, project: Project, models_folder: Path) -> None:
+        """A carried model's embedded files copied out too, so that it is still saved once the project file has
+        moved; a member that cannot be copied is read from the project file at the save, as before."""
+        for ref in (entry.file, entry.original):
+            if ref is not None and ref.embedded is not None and ref.embedded not in self.member_copies:
+                try:
+                    self._copy_member(project, ref.embedded, models_folder)
+                except InputError:
+                    pass
 
 
 def embedded_copy(models_folder: Path, source: Path, member: str) -> Path:

@@ -6,7 +6,8 @@ The pipeline is three stages of one run, each the same code and settings as its 
 what that command writes as it ends, into the output folder: structure from motion (`splatstyler sfm`: OUT/scene,
 a COLMAP folder that appears only whole), the reconstruction (`splatstyler reconstruct`: OUT/reconstruction, with
 its report and renders) and, with a painting, the stylization (`splatstyler stylize`: OUT/stylized, with its report
-and renders); folders taken by an earlier run get a number (scene_2, ...). When it has finished, the last model is
+and renders); each folder is claimed (created) as the run starts, and a name that an earlier run or another window
+took gets a number (scene_2, ...); the SfM folder stays empty until the scene is complete. When it has finished, the last model is
 opened as the scene (the reconstruction paired as its original, for the style strength) and a project recording
 them, the dataset and the painting is written to OUT (project.splatproj, or the first free name). Without a
 painting the run ends after the reconstruction, and a line says how to stylize it.
@@ -76,10 +77,7 @@ def choose_photos_folder(ui) -> None:
 def start_photos(doc, session, ui) -> None:
     """Start the photos pipeline with the dialog's settings (ui.photos, and the Training panel's preset, iterations
     and downscale): a new scene, the three stages in the live session."""
-    from app.settings import sfm as sfm_settings
-    from app.stage_outputs import StageOutputs
-    from app.viewer.live.runs import next_run_dir
-    from app.viewer.live.stages import reconstruct_stage, sfm_stage, stylize_stage
+    from app.viewer.files import unless_unsaved
     from training.scene.sfm import CAMERA_MODELS, list_photos
 
     p, t = ui.photos, ui.training
@@ -102,11 +100,22 @@ def start_photos(doc, session, ui) -> None:
         doc.open_painting(p.painting)  # a bad painting stops here, before minutes of work
         ui.paths.style = p.painting
     painting = doc.painting.path if p.painting else None
+    unless_unsaved(doc, session, ui, "starting a new scene from photos",
+                   lambda: _begin_photos(doc, session, ui, folder, count, painting))
 
+
+def _begin_photos(doc, session, ui, folder: Path, count: int, painting: str | None) -> None:
+    """The pipeline started (the photos and painting checked): its folders claimed, a new scene, the stages."""
+    from app.settings import sfm as sfm_settings
+    from app.stage_outputs import StageOutputs
+    from app.viewer.live.runs import claimed_for, settings_now
+    from app.viewer.live.stages import reconstruct_stage, sfm_stage, stylize_stage
+
+    p, t = ui.photos, ui.training
     out = ui.out_dir()
-    folders = {"scene": next_run_dir(out, "scene"), "reconstruction": next_run_dir(out, "reconstruction")}
+    folders = {"scene": claimed_for(ui, out, "scene"), "reconstruction": claimed_for(ui, out, "reconstruction")}
     if painting:
-        folders["stylized"] = next_run_dir(out, "stylized")
+        folders["stylized"] = claimed_for(ui, out, "stylized")
     outputs = StageOutputs(folders["scene"], painting, out)
     overrides = {} if t.recon_iters is None else {"iterations": int(t.recon_iters)}
     sfm = sfm_settings.options_from_flags(["--max-size", str(int(p.max_size)), "--camera-model", p.camera_model])
@@ -115,7 +124,7 @@ def start_photos(doc, session, ui) -> None:
                                 outputs=outputs.reconstruction, **overrides)]
     if painting:
         t.stylize = replace(t.stylize, preset=t.preset)  # one preset for the run (quick: minutes on a CPU)
-        stages.append(stylize_stage(folders["scene"], painting, folders["stylized"], config=replace(t.stylize),
+        stages.append(stylize_stage(folders["scene"], painting, folders["stylized"], config=settings_now(ui),
                                     outputs=outputs.stylization))
 
     # a new scene: nothing of the last one is shown, edited or saved into the next project
@@ -167,7 +176,8 @@ def photos_run_ended(doc, session, ui, state: str) -> None:
     recon = Path(p.folders["reconstruction"]) / "point_cloud.ply"
     stylized = Path(p.folders["stylized"]) / "point_cloud.ply" if "stylized" in p.folders else None
     final = stylized if stylized is not None else recon
-    open_model(doc, session, ui, str(final))
+    # the scene the user started from the photos: what was edited meanwhile (keyframes) goes into its project
+    open_model(doc, session, ui, str(final), ask=False)
     if stylized is not None:
         doc.pair_original(recon)  # the Colour panel's style strength, and the project's record of the original
     written = save_project(doc, session, ui)

@@ -15,14 +15,45 @@ from training.core.trainer import Keep, SetRegion
 from app.viewer.live.stages import reconstruct_stage, stylize_stage
 
 
-def next_run_dir(out: Path, name: str = "stylized") -> Path:
-    """``out/stylized`` for the first stylization, then ``stylized_2``, ``stylized_3``...: each run keeps its own
-    output, and none overwrites another (also across sessions writing to the same folder)."""
+def claim_run_dir(out: Path, name: str = "stylized") -> Path:
+    """Make and return ``out/stylized`` for the first stylization, then ``stylized_2``, ``stylized_3``...: each run
+    claims its folder when it starts, by creating it (a folder another run made first, in this window or another
+    writing to the same output folder, is that run's: the next name is tried), so no run writes over another's."""
+    out.mkdir(parents=True, exist_ok=True)
     candidate, n = out / name, 1
-    while candidate.exists():
-        n += 1
-        candidate = out / f"{name}_{n}"
-    return candidate
+    while True:
+        try:
+            candidate.mkdir()
+            return candidate
+        except FileExistsError:
+            n += 1
+            candidate = out / f"{name}_{n}"
+
+
+def claimed_for(ui, out: Path, name: str) -> Path:
+    """``claim_run_dir``, noted in the UI state: a folder the run never wrote to is given back when it ends."""
+    folder = claim_run_dir(out, name)
+    ui.training.claimed.append(folder)
+    return folder
+
+
+def give_back_unused(session, ui) -> None:
+    """Each frame: once a run's thread is gone, the folders it claimed and left empty (stopped or failed before its
+    stage began) are removed, so the output folder holds only what runs wrote."""
+    if session.running or not ui.training.claimed:
+        return
+    for folder in ui.training.claimed:
+        try:
+            folder.rmdir()  # only an empty folder goes
+        except OSError:
+            pass
+    ui.training.claimed = []
+
+
+def settings_now(ui):
+    """The stylization settings as the Style panel holds them when a stylization stage begins (a function the stage
+    calls then): what the user changed during the stages before it is what the run uses."""
+    return lambda: replace(ui.training.stylize)
 
 
 def record_saved(doc, ui, stage: str, path: str) -> None:
@@ -48,17 +79,19 @@ def start_reconstruction(doc, session, ui, then_stylize: bool = False) -> None:
     if doc.dataset is None:
         raise ValueError("open a dataset first (COLMAP folder or transforms.json)")
     t = ui.training
+    if then_stylize and doc.painting is None:
+        raise ValueError("open a painting first")
+    if session.running:
+        raise ValueError("a run is going: stop it (Training panel) before starting another")
     overrides = {} if t.recon_iters is None else {"iterations": int(t.recon_iters)}
     # each run in a folder of its own (reconstruction, reconstruction_2...): a later run never overwrites a model
     # that a project or a stylization refers to
     outputs = t.outputs
-    stages = [reconstruct_stage(doc.dataset.path, next_run_dir(ui.out_dir(), "reconstruction"), preset=t.preset,
+    stages = [reconstruct_stage(doc.dataset.path, claimed_for(ui, ui.out_dir(), "reconstruction"), preset=t.preset,
                                 downscale=t.downscale, outputs=outputs and outputs.reconstruction, **overrides)]
     if then_stylize:
-        if doc.painting is None:
-            raise ValueError("open a painting first")
-        stages.append(stylize_stage(doc.dataset.path, doc.painting.path, next_run_dir(ui.out_dir()),
-                                    config=replace(t.stylize), outputs=outputs and outputs.stylization))
+        stages.append(stylize_stage(doc.dataset.path, doc.painting.path, claimed_for(ui, ui.out_dir(), "stylized"),
+                                    config=settings_now(ui), outputs=outputs and outputs.stylization))
     t.before = None
     ui.messages.error = ""
     session.start(stages)
@@ -78,7 +111,9 @@ def start_stylization(doc, session, ui) -> None:
         model = t.base_model or ui.paths.model or None
     if model is None:
         raise ValueError("open a model (PLY) or reconstruct first")
-    run = next_run_dir(ui.out_dir())
+    if session.running:
+        raise ValueError("a run is going: stop it (Training panel) before starting another")
+    run = claimed_for(ui, ui.out_dir(), "stylized")
     if doc.edited() and not (t.continue_last_run and t.runs):
         from training.model.ply_io import write_ply
 
@@ -86,12 +121,11 @@ def start_stylization(doc, session, ui) -> None:
         # added to the scene, as one model kept in the run's own folder (it is that run's original, for style
         # strength; a later run writes its own); the region's mask is over these rows
         model = run / "edited_model.ply"
-        model.parent.mkdir(parents=True, exist_ok=True)
         write_ply(model, doc.edited_gaussians())
     t.before = doc.in_file_frame(doc.model)  # the run works in the file's (dataset's) frame
     doc.stylized_from = str(model)  # the Colour panel offers it as the result's original
     ui.messages.error = ""
-    session.start([stylize_stage(doc.dataset.path, doc.painting.path, run, config=replace(t.stylize), model=model,
+    session.start([stylize_stage(doc.dataset.path, doc.painting.path, run, config=settings_now(ui), model=model,
                                  mask=region_mask(doc, ui), outputs=t.outputs and t.outputs.stylization)])
 
 

@@ -20,6 +20,7 @@ that and its time in the checkpoint, as the CLI does, so that a report made from
 
 from __future__ import annotations
 
+from dataclasses import replace
 from pathlib import Path
 from typing import Any
 
@@ -109,8 +110,10 @@ def reconstruct_stage(data: str | Path, out: str | Path, preset: str = "quick", 
 
 def stylize_stage(data: str | Path, style: str | Path, out: str | Path, config=None, model: str | Path | None = None,
                   vgg_weights: str | None = None, mask=None, outputs=None) -> Stage:
-    """Stylize ``model`` (or the previous stage's PLY) after the painting ``style``; ``config`` a StylizeConfig;
-    ``mask`` (N,) bool: only those Gaussians change."""
+    """Stylize ``model`` (or the previous stage's PLY) after the painting ``style``; ``config`` a StylizeConfig, or a
+    function giving the one to use, called when the stage begins (the window's settings as they are then: a run
+    that reconstructs first stylizes with what the user set meanwhile); ``mask`` (N,) bool: only those Gaussians
+    change."""
     out = Path(out)
 
     def build(previous):
@@ -124,7 +127,7 @@ def stylize_stage(data: str | Path, style: str | Path, out: str | Path, config=N
         source = Path(model) if model is not None else previous
         if source is None:
             raise ValueError("nothing to stylize: open a model or reconstruct first")
-        cfg = config or StylizeConfig(preset="quick")
+        cfg = replace(config() if callable(config) else config or StylizeConfig(preset="quick"))
         painting = load_style_image(style)
         scene = load_scene(data, downscale=choose_downscale(Path(data), cfg.render_max_side))
         return Stylizer(read_model(source), scene, painting, cfg, vgg_weights=vgg_weights, model_name=source,
