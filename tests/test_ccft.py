@@ -233,6 +233,34 @@ def test_bfloat16_search_finds_the_float32_top_k():
         assert int(clear.sum()) > n // 2
 
 
+def test_bfloat16_certificate_holds_on_a_constructed_near_tie():
+    """Inputs that all round down by almost 2^-8 (each channel just below a bfloat16 midpoint, x and z alike) make a
+    bfloat16 score 0.0078 |x| |z| low: more than a bound built on 2^-9 per input (0.0065) allows, within the one
+    derived from 2^-8 (bf16_score_error). Among rows whose bfloat16 scores tie with it and whose exact scores are a
+    hair lower, the truly best row drops out of the 64 candidates where the tie's order puts it last; it must then
+    fail the certificate and be found by the float32 search. Several placements are tried, and at least one must
+    drop it (else the construction no longer exercises the certificate); every one must give float32's support."""
+    from training.stylize.ccft import BF16_UNIT, bf16_score_error, topk_support
+
+    c, w = 768, 2.0 ** -5
+    x = torch.full((1, c), w * (1 + BF16_UNIT * (1 - 1e-3)))  # rounds down to w
+    best = torch.full((c,), w * (1 + BF16_UNIT * (1 - 1e-3)))
+    dropped = 0
+    for count in (65, 100, 200):
+        # each rounds to w as well (the best's bfloat16 score, 0.75), with exact scores from 0.7549 to 0.7556
+        others = [torch.full((c,), w * (1 + BF16_UNIT * (1 - f))) for f in torch.linspace(0.05, 0.6, count).tolist()]
+        for at in (0, count // 2, count):
+            Z = torch.stack(others[:at] + [best] + others[at:])
+            exact = (x.double() @ Z.double().t())[0]
+            low = (x.bfloat16() @ Z.bfloat16().t()).float()[0]
+            assert int(exact.argmax()) == at and bool((low == low[at]).all())
+            error = float(exact[at] - low[at]) / float(x.norm() * Z.norm(dim=1).max())
+            assert 0.0065 < error <= bf16_score_error(c), error
+            dropped += at not in torch.topk(low, 64).indices.tolist()
+            assert topk_support(x, Z, 1, precision="bfloat16").tolist() == [[at]], (count, at)
+    assert dropped, "no placement dropped the best row from the bfloat16 candidates"
+
+
 def test_float32_row_kernels_match_the_dense_products():
     """On the CPU in float32 the support's row products (training/stylize/support_cpu.py: the costs, their gradient,
     the guide map) give the dense float64 products' numbers to float32 rounding, and ccft_loss in float32 (which

@@ -64,13 +64,25 @@ def _chunk_rows(chunk_elements: int, row_size: int) -> int:
 
 
 # The bfloat16 search: each row's CANDIDATES_PER_K * k best by a bfloat16 product are scored again in float32, and
-# the row is certified when its k-th exact score beats the last candidate's bfloat16 score by more than the
-# product's worst-case error, BF16_REL_ERROR * |x| * max |z| (inputs rounded to 8 bits, 2^-8 on a product of two;
-# the output rounded, 2^-9; float32 accumulation): no feature outside the candidates can then be in the top k.
+# the row is certified when its k-th float32 score beats the last candidate's bfloat16 score by more than the worst
+# error of the two, bf16_score_error(C) * |x| * max |z|: no feature outside the candidates can then be in the top k.
 # Rows that are not certified are searched again in float32.
 CANDIDATES_PER_K = 4
 MIN_CANDIDATES = 64
-BF16_REL_ERROR = 0.0065
+BF16_UNIT = 2.0 ** -8  # bfloat16 keeps 8 significant bits: rounding moves a value by at most 2^-8 of itself
+F32_UNIT = 2.0 ** -24
+
+
+def bf16_score_error(channels: int) -> float:
+    """The worst |bfloat16 score - exact score| of two C-channel vectors over |x| |z|, for a product whose inputs
+    are rounded to bfloat16, whose sum is kept in float32 and whose result is rounded to bfloat16 (torch's CPU
+    matmul), plus the float32 rescoring's own error. Each rounded input is off by at most u = 2^-8 of itself, so a
+    product of two by 2u + u^2; a float32 sum of C terms by gamma_C = C 2^-24 / (1 - C 2^-24) of the sum of their
+    magnitudes (at most |x| |z|, Cauchy-Schwarz); the result's rounding by u of the result. 0.01186 for C = 768
+    (a bound built on 2^-9 per input, 0.0065, was exceeded by inputs that all round the same way: 0.0078)."""
+    gamma = channels * F32_UNIT / (1 - channels * F32_UNIT)
+    inputs = 2 * BF16_UNIT + BF16_UNIT ** 2
+    return inputs + gamma * (1 + BF16_UNIT) ** 2 + BF16_UNIT * (1 + inputs + gamma) + gamma
 
 
 @functools.lru_cache(maxsize=None)
@@ -133,7 +145,7 @@ def topk_support(Xn: torch.Tensor, Z: torch.Tensor, k: int,
         raise ValueError(f"unknown precision {precision!r} (auto, float32, bfloat16)")
     k2 = min(m, max(CANDIDATES_PER_K * k, MIN_CANDIDATES))
     Xb, Ztb = Xn.bfloat16(), Zt.bfloat16()
-    margin = BF16_REL_ERROR * float(Z.norm(dim=1).max()) * Xn.norm(dim=1)
+    margin = bf16_score_error(Xn.shape[1]) * float(Z.norm(dim=1).max()) * Xn.norm(dim=1)
     for s in range(0, n, rows):
         e = min(n, s + rows)
         cand = torch.topk(Xb[s:e] @ Ztb, k2, dim=1, largest=True, sorted=True)
