@@ -232,6 +232,43 @@ def cli_imports(known: dict[str, Path]) -> list[str]:
     return list(dict.fromkeys(out))  # "from app.cli import main" names app.cli twice
 
 
+def imports_ui(path: Path) -> bool:
+    return any(is_under(imported, gui) for _, imported in imports_of(path) for gui in GUI_MODULES + ("renderer_gl",))
+
+
+def ui_reached(name: str, graph: dict[str, set[str]], known: dict[str, Path]) -> list[tuple[str, list[str]]]:
+    """The app modules that import UI or GL and that ``name`` reaches through its imports (those inside functions
+    too), each with the path it takes; ``name``'s own UI imports are reported apart."""
+    out, seen, queue = [], {name}, [(name, [name])]
+    while queue:
+        here, via = queue.pop(0)
+        for m in sorted(graph.get(here, ())):
+            if m in seen:
+                continue
+            seen.add(m)
+            if imports_ui(known[m]):
+                out.append((m, via + [m]))
+            else:
+                queue.append((m, via + [m]))
+    return out
+
+
+ROOMS = ("app.viewer.display", "app.viewer.edit", "app.viewer.live", "app.viewer.panels")
+
+
+def package_graph(graph: dict[str, set[str]]) -> dict[str, set[str]]:
+    """The viewer's rooms (ROOMS) as nodes: room -> the rooms its modules import."""
+    def room(m: str) -> str | None:
+        return next((r for r in ROOMS if is_under(m, r)), None)
+
+    out: dict[str, set[str]] = {r: set() for r in ROOMS}
+    for name, imported in graph.items():
+        here = room(name)
+        if here is not None:
+            out[here] |= {r for r in map(room, imported) if r is not None and r != here}
+    return out
+
+
 DOOR = "app.viewer.live.session"  # the one module of the app that holds a running trainer
 
 
@@ -264,6 +301,12 @@ def app_violations() -> list[str]:
                 if any(is_under(imported_name, gui) for gui in GUI_MODULES + ("renderer_gl",)):
                     out.append(f"{name}:{line} imports {imported_name}: the document and its parts, the live "
                                "session and the UI state have no UI")
+            for reached, via in ui_reached(name, graph, known):
+                out.append(f"{name} reaches {reached} (through {' -> '.join(via)}), which imports UI: the "
+                           "document and its parts, the live session and the UI state have no UI, even at one "
+                           "remove")
+    for cycle in cycles(package_graph(graph)):
+        out.append(f"package circle: {' -> '.join(cycle)}: the viewer's rooms import one way")
     for name, path in sorted(known.items()):
         if is_under(name, "app") and name != DOOR:
             out += [f"{name}:{line} reaches .trainer: the live session is the one door into a trainer (read its "
@@ -381,3 +424,18 @@ def test_light_modules_load_without_torch(module):
     result = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, cwd=ROOT, timeout=120)
     assert result.returncode == 0, result.stderr
     assert result.stdout.strip() == "False"
+
+
+def test_importing_the_document_and_the_live_session_loads_no_ui():
+    """What the rooms without UI promise, checked by importing them: every module of app/viewer/edit and
+    app/viewer/live, and the UI state, in a fresh interpreter, leave imgui_bundle, glfw and moderngl unloaded."""
+    names = [".".join(p.relative_to(ROOT).with_suffix("").parts) for top in ("app/viewer/edit", "app/viewer/live")
+             for p in modules(top)] + ["app.viewer.state"]
+    names = [n.removesuffix(".__init__") for n in names]
+    code = ("import importlib, sys\n"
+            f"for name in {names!r}:\n"
+            "    importlib.import_module(name)\n"
+            f"print(sorted(m for m in {GUI_MODULES!r} if m in sys.modules))\n")
+    proc = subprocess.run([sys.executable, "-c", code], cwd=ROOT, capture_output=True, text=True, timeout=300)
+    assert proc.returncode == 0, proc.stderr
+    assert proc.stdout.strip() == "[]", proc.stdout

@@ -18,7 +18,7 @@ import pytest
 import torch
 
 from app.project import FileRef, ModelEntry, Project, open_project, save_project
-from app.viewer import files
+from app.viewer import dialogs, files
 from app.viewer.app import ViewerApp
 from app.viewer.layout import confirm_exit, window_title
 from app.viewer.live import runs
@@ -387,13 +387,13 @@ def test_save_as_asks_before_replacing_the_file_its_suffix_names(tmp_path, monke
     app = new_app(tmp_path)
     doc, session, ui = app.document, app.session, app.ui
     files.open_model(doc, session, ui, str(model))
-    monkeypatch.setattr(files, "choose_file", lambda *a, **k: str(tmp_path / "scene"))
-    assert files.save_project_as(doc, session, ui) is None
+    monkeypatch.setattr(dialogs, "choose_file", lambda *a, **k: str(tmp_path / "scene"))
+    assert dialogs.save_project_as(doc, session, ui) is None
     (question,) = ui.questions
     assert question.text == f"{existing} exists. Replace it?"
     assert existing.read_bytes() == before
     ui.questions.clear()
     dict(question.answers)["Replace"]()
     assert open_project(existing)[0].models[0].name == "m" and ui.project.path == str(existing)
-    monkeypatch.setattr(files, "choose_file", lambda *a, **k: str(tmp_path / "new"))
-    assert files.save_project_as(doc, session, ui) == tmp_path / "new.splatproj" and not ui.questions
+    monkeypatch.setattr(dialogs, "choose_file", lambda *a, **k: str(tmp_path / "new"))
+    assert dialogs.save_project_as(doc, session, ui) == tmp_path / "new.splatproj" and not ui.questions

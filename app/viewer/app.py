@@ -17,7 +17,7 @@ from pathlib import Path
 
 import numpy as np
 
-from app.viewer import files
+from app.viewer import dialogs, files
 from app.viewer.camera import ViewerCamera, camera_span
 from app.viewer.display.gizmo import gizmo_keys, sync_crop_box
 from app.viewer.display.path_video import step_video
@@ -384,6 +384,9 @@ class ViewerApp:
 
             glfw.set_drop_callback(glfw_utils.glfw_window_hello_imgui(), self.on_drop)
         doc, session, ui = self.document, self.session, self.ui
+        from imgui_bundle import imgui
+
+        ui.window.layout_now = imgui.save_ini_settings_to_memory  # what a saved project keeps of the window
         ui.view = View3D(self.ctx)
         renderer = str(self.ctx.info.get("GL_RENDERER", "")).lower()
         ui.window.software_gl = any(name in renderer for name in ("llvmpipe", "softpipe", "swrast"))
@@ -517,7 +520,7 @@ class ViewerApp:
             if chord(ctrl | k.s.value):
                 ui.messages.guarded("save project", self.save_project)
             elif chord(ctrl | shift | k.s.value):
-                ui.messages.guarded("save project as", files.save_project_as, doc, self.session, ui)
+                ui.messages.guarded("save project as", dialogs.save_project_as, doc, self.session, ui)
             elif chord(ctrl | k.z.value):
                 doc.undo()
             elif chord(ctrl | k.y.value) or chord(ctrl | shift | k.z.value):

@@ -5,8 +5,8 @@ and framed, a new dataset places the camera at its first view).
 
 A save never writes over a project the session did not open or save: Save project writes where the session's
 project was opened or last saved, and without one (nothing opened, or a model opened since, which starts a new
-scene) to a free name in the output folder (project.splatproj, project_2.splatproj, ...); Save project as asks, and
-asks again before replacing a file its name reaches only once ``.splatproj`` is added.
+scene) to a free name in the output folder (project.splatproj, project_2.splatproj, ...). The system's file dialogs
+(Open..., Save project as) are dialogs.py's: this module has no UI.
 
 Nothing replaces unsaved edits without asking (``unless_unsaved``): opening a model or a project, starting from
 photos and quitting first ask Save / Discard / Cancel while the document has edits no project holds.
@@ -15,22 +15,16 @@ photos and quitting first ask Save / Discard / Cancel while the document has edi
 from __future__ import annotations
 
 import dataclasses
-import shutil
 from pathlib import Path
 
 import numpy as np
 
-from app.project import with_suffix
 from app.project import save_project as write_project
 from app.viewer.state import Question
 from training.core.errors import InputError
-from training.model.formats import FILE_DIALOG_PATTERN, SUFFIX_LIST, has_model_suffix
+from training.model.formats import SUFFIX_LIST, has_model_suffix
 
 IMAGE_SUFFIXES = (".jpg", ".jpeg", ".png", ".exr", ".tif", ".tiff", ".webp", ".bmp")
-DIALOG_FILTERS = {"model": ["Gaussians", FILE_DIALOG_PATTERN],
-                  "data": ["Scenes", "transforms.json cameras.bin images.bin"],
-                  "style": ["Images", "*.jpg *.jpeg *.png *.exr *.tif"],
-                  "project": ["Projects", "*.splatproj"]}
 
 
 def _no_run(session, what: str) -> None:
@@ -200,13 +194,11 @@ def free_project_path(out: Path) -> Path:
 
 def project_now(doc, ui, layout: str | None = None):
     """The session as a Project: the document with the window's parts (the stylization settings, the view's camera,
-    the dock layout: imgui's as it is now unless ``layout`` is given)."""
+    the dock layout: the window's as it is now (``ui.window.layout_now``) unless ``layout`` is given)."""
     from app.camera_path import keyframe_from
 
     if layout is None:
-        from imgui_bundle import imgui
-
-        layout = imgui.save_ini_settings_to_memory()
+        layout = ui.window.layout_now() if ui.window.layout_now is not None else ""
     view = ui.view
     camera, distance, up = None, 1.0, np.array([0.0, -1.0, 0.0])
     if view is not None and view.camera is not None:
@@ -218,7 +210,7 @@ def project_now(doc, ui, layout: str | None = None):
 
 def save_project(doc, session, ui, path: str | None = None, layout: str | None = None) -> Path:
     """The session as a project file (atomically): to ``path``, or where it was opened or saved, or a free name
-    in the output folder (``free_project_path``). ``layout``: the dock layout (default: imgui's, as it is now)."""
+    in the output folder (``free_project_path``). ``layout``: the dock layout (default: the window's, as it is now)."""
     named = bool(path or ui.project.path)
     target = Path(path or ui.project.path or free_project_path(ui.out_dir()))
     written = write_project(target, project_now(doc, ui, layout))
@@ -228,64 +220,3 @@ def save_project(doc, session, ui, path: str | None = None, layout: str | None =
     ui.project.path = str(written)
     ui.messages.say(f"saved project {written}" + ("" if named else " (File > Save project as... chooses the name)"))
     return written
-
-
-def save_project_as(doc, session, ui) -> Path | None:
-    """File > Save project as: a path from the system's save dialog (which asks before replacing the file it was
-    given), then saved there; None when the dialog was cancelled. A name typed without ``.splatproj`` gets it, and
-    when that names a file already there, the window asks before replacing it (the dialog asked about another)."""
-    start = ui.project.path or str(free_project_path(ui.out_dir()))
-    path = choose_file("Save project as", DIALOG_FILTERS["project"], save=True, start=str(Path(start).absolute()))
-    if not path:
-        return None
-    target = with_suffix(path)
-    if target != Path(path) and target.exists():
-        ui.questions.append(Question("Replace project", f"{target} exists. Replace it?",
-                                     [("Replace", lambda: save_project(doc, session, ui, str(target))),
-                                      ("Cancel", None)]))
-        return None
-    return save_project(doc, session, ui, str(target))
-
-
-def dialogs_available() -> bool:
-    return any(shutil.which(t) for t in ("zenity", "kdialog", "qarma", "matedialog"))
-
-
-def choose_file(title: str, filters: list[str], save: bool = False, start: str = "") -> str:
-    """A path from the system's file dialog, to open (or with ``save``, to write; the dialog asks before
-    replacing a file), '' when cancelled; an error when no dialog program exists."""
-    if not dialogs_available():
-        raise ValueError("no file dialog program on this system (zenity or kdialog): type the path in the Scene "
-                         "panel, or drop the file on the window" if not save else
-                         "no file dialog program on this system (zenity or kdialog): Ctrl+S saves to a free name "
-                         "in the output folder")
-    from imgui_bundle import portable_file_dialogs as pfd
-
-    if save:
-        return pfd.save_file(title, start, filters).result()
-    chosen = pfd.open_file(title, start, filters).result()
-    return chosen[0] if chosen else ""
-
-
-def choose_folder(title: str, start: str = "") -> str:
-    """A folder from the system's folder dialog, '' when cancelled; an error when no dialog program exists."""
-    if not dialogs_available():
-        raise ValueError("no file dialog program on this system (zenity or kdialog): drop the folder on the window, "
-                         "or give it on the command line (splatstyler view FOLDER)")
-    from imgui_bundle import portable_file_dialogs as pfd
-
-    return pfd.select_folder(title, str(Path(start).absolute()) if start else "").result()
-
-
-OPENERS = {"model": open_model, "data": open_data, "style": open_style, "project": open_project,
-           "add": add_to_scene}
-
-
-def open_from_dialog(doc, session, ui, what: str) -> None:
-    """File menu: a file dialog (where a dialog program exists) for the model, dataset, painting or project, or
-    a model to add to the scene."""
-    filters = DIALOG_FILTERS["model" if what == "add" else what]
-    title = "Add model to scene" if what == "add" else f"Open {what}"
-    path = choose_file(title, filters)
-    if path:
-        OPENERS[what](doc, session, ui, path)

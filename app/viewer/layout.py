@@ -15,8 +15,8 @@ from pathlib import Path
 
 from imgui_bundle import hello_imgui, imgui
 
-from app.viewer.files import open_from_dialog, save_project, save_project_as, unless_unsaved
-from app.viewer.live.photos import choose_photos_folder
+from app.viewer.dialogs import choose_photos_folder, open_from_dialog, save_project_as
+from app.viewer.files import save_project, unless_unsaved
 from app.viewer.live.sfm_run import phase_time_left
 from app.viewer.panels import edit_panel, export_panel, gizmo_panel, select_tools_panel
 from app.viewer.panels.colour_panel import colour_panel

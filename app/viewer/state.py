@@ -13,7 +13,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import Any, Callable
 
 import numpy as np
 
@@ -267,6 +267,7 @@ class WindowState:
     style_settings_h: float = 0.0  # the Style panel's height below the painting, last frame (the painting yields)
     fixed_folded: bool = False  # the Style panel's "Fixed at the start" was last folded for a run (opened after)
     title: str = "splatstyler"  # the window's title as last set ("*" at its end while edits are unsaved)
+    layout_now: Callable[[], str] | None = None  # the dock layout as it is now (imgui's, set by the window)
 
 
 @dataclass

@@ -79,7 +79,10 @@ def signal_number() -> int | None:
 
 
 def requested() -> bool:
-    """Has a stop been asked for, of the process or of this thread's watched work? Cheap: call it often."""
+    """Has a stop been asked for, of the process or of this thread's watched work? Cheap: call it often. False on a
+    thread inside ``saving``: the save a stop started is not stopped."""
+    if getattr(_local, "saving", 0):
+        return False
     if _signals:
         return True
     watched = getattr(_local, "predicates", None)
@@ -97,6 +100,17 @@ def check() -> None:
     """Raise ``StopRequested`` if a stop has been asked for; else return at once."""
     if requested():
         raise StopRequested()
+
+
+@contextmanager
+def saving() -> Iterator[None]:
+    """While inside, this thread's checks pass: the work a stop keeps (a checkpoint, the model so far) is written
+    whole, whatever it calls (a fingerprint reading the scene's cameras checks between them)."""
+    _local.saving = getattr(_local, "saving", 0) + 1
+    try:
+        yield
+    finally:
+        _local.saving -= 1
 
 
 @contextmanager

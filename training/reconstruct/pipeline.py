@@ -168,7 +168,8 @@ def reconstruct_to_folder(data: str | Path, out: str | Path, config: Reconstruct
     except BaseException as exc:
         if not stop.is_stop(exc):
             raise
-        checkpoint()
+        with stop.saving():
+            checkpoint()
         raise Stopped(trainer.step_count, ckpt_path) from None
     seconds = elapsed + (time.perf_counter() - t_start)
     if flat is not None:

@@ -155,7 +155,8 @@ def _build_scene(source: Path, views: list[RawView], sources: list[Path], cached
 
         iterator = tqdm(iterator, desc="loading images", unit="img", disable=None, leave=False)
     for i in iterator:
-        stop.check()
+        if load_images:  # reading and resizing the images is the part that takes seconds
+            stop.check()
         view, src = views[i], sources[i]
         rgb = alpha = None
         if load_images:

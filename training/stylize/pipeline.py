@@ -147,7 +147,8 @@ def stylize_to_folder(model: Path, data: Path, style: Path, out: Path, config: S
         if not stop.is_stop(exc):
             raise
         if stylizer.iteration > start_iteration or state is not None:
-            keep()
+            with stop.saving():
+                keep()
             raise stop.StopRequested(f"at iteration {stylizer.iteration}; the model so far is in "
                                      f"{out / 'point_cloud.ply'} (continue with --resume)") from None
         raise stop.StopRequested("before the first iteration; nothing saved") from None

@@ -65,15 +65,6 @@ def open_dropped(doc, session, ui, path: str) -> None:
         open_file(doc, session, ui, path)
 
 
-def choose_photos_folder(ui) -> None:
-    """File > New from photos...: the photos folder from the system's folder dialog, then the settings dialog."""
-    from app.viewer.files import choose_folder
-
-    folder = choose_folder("New from photos: the folder of photos", ui.photos.folder)
-    if folder:
-        ask_for_photos(ui, folder)
-
-
 def start_photos(doc, session, ui) -> None:
     """Start the photos pipeline with the dialog's settings (ui.photos, and the Training panel's preset, iterations
     and downscale): a new scene, the three stages in the live session."""

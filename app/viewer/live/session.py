@@ -26,6 +26,7 @@ the time it spends drawing while a trainer runs; see view3d.py).
 
 from __future__ import annotations
 
+import contextlib
 import queue
 import threading
 import time
@@ -469,9 +470,12 @@ class LiveSession:
                 self._calls_before_save()
                 self._set(state="finishing")
                 try:
-                    previous = stage.save(trainer, finished, self._stop.is_set)
+                    # a stopped stage's save is not stopped; a finished one's final passes are (Cancelled below)
+                    with stop.saving() if not finished else contextlib.nullcontext():
+                        previous = stage.save(trainer, finished, self._stop.is_set)
                 except Cancelled:  # stopped during the stage's long final passes: what there is, saved quickly
-                    finished, previous = False, stage.save(trainer, False, lambda: True)
+                    with stop.saving():
+                        finished, previous = False, stage.save(trainer, False, lambda: True)
                 if previous is not None:
                     self._out.put(Saved(str(previous), stage.name))
                     self.saved.append(Path(str(previous)))
@@ -494,7 +498,8 @@ class LiveSession:
                 self._out.put(Failed(line, stage.name))
                 if trainer is not None:
                     try:
-                        saved = stage.save(trainer, False, lambda: True)
+                        with stop.saving():
+                            saved = stage.save(trainer, False, lambda: True)
                         if saved is not None:
                             self._out.put(Saved(str(saved), stage.name))
                             self.saved.append(Path(str(saved)))
@@ -511,7 +516,8 @@ class LiveSession:
         the trainer was built), the stage's stop line, the state "stopped"."""
         if trainer is not None:
             try:
-                saved = stage.save(trainer, False, lambda: True)
+                with stop.saving():
+                    saved = stage.save(trainer, False, lambda: True)
                 if saved is not None:
                     self._out.put(Saved(str(saved), stage.name))
                     self.saved.append(Path(str(saved)))

@@ -7,7 +7,8 @@ from __future__ import annotations
 from imgui_bundle import imgui
 
 from app.viewer.display.gizmo import KEYS
-from app.viewer.files import add_to_scene, open_from_dialog
+from app.viewer.dialogs import open_from_dialog
+from app.viewer.files import add_to_scene
 from app.viewer.panels.text_colours import GREY
 
 

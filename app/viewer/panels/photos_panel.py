@@ -6,7 +6,7 @@ from __future__ import annotations
 
 from imgui_bundle import imgui
 
-from app.viewer.files import DIALOG_FILTERS, choose_file, choose_folder
+from app.viewer.dialogs import DIALOG_FILTERS, choose_file, choose_folder
 from app.viewer.live.photos import start_photos
 from app.viewer.panels.text_colours import GREY
 from training.scene.sfm import CAMERA_MODELS

@@ -10,7 +10,8 @@ import numpy as np
 from imgui_bundle import imgui
 
 from app.viewer.display.view3d import MODES, PHOTO_MODES
-from app.viewer.files import DIALOG_FILTERS, choose_file, open_data, open_model, open_style
+from app.viewer.dialogs import DIALOG_FILTERS, choose_file
+from app.viewer.files import open_data, open_model, open_style
 
 
 def _path_row(doc, session, ui, label: str, attr: str, action) -> None:
