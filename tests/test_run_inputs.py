@@ -308,7 +308,7 @@ def test_sfm_interrupted_while_moving_into_place_leaves_nothing(tmp_path, monkey
         def write_binary(self, path):
             Path(path, "cameras.bin").write_bytes(b"")
 
-    def undistort(out, model, images, output_type):
+    def undistort(out, model, images, output_type, cancellation_token):
         (Path(out) / "images").mkdir(parents=True)
         (Path(out) / "sparse").mkdir()
 

@@ -158,10 +158,10 @@ class WindowOutputs(StageOutputs):
         super().__init__(data, style, out)
         self.sheet_of: Path | None = None  # the stylized model the contact sheet was last made of
 
-    def stylization(self, trainer, ply, say) -> None:
+    def stylization(self, trainer, ply, say, record) -> None:
         from app.demo_sheet import demo_contact_sheet
 
-        super().stylization(trainer, ply, say)
+        super().stylization(trainer, ply, say, record)
         ply = Path(ply)
         folder = ply.parent
         export_splat(ply, folder / "scene.splat")

@@ -57,6 +57,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         f"render's features from its content's): the content weight is steered while the run goes "
                         f"to hold it, so every painting gets the room the scene allows; 0: a constant weight "
                         f"({recipe_default('structure_budget')})")
+    p.add_argument("--lambda-moments", type=float, default=None,
+                   help=f"weight of the painting's feature statistics (each channel's mean and spread of the "
+                        f"render's relu3 features against the painting's, relative): CCFT says which painting "
+                        f"feature each part becomes, this how strongly it fires ({recipe_default('lambda_moments')})")
     p.add_argument("--content-norm", choices=D.CONTENT_NORMS, default=None,
                    help=f"the content loss's unit: relative: the squared feature error over the content features' "
                         f"energy, the same balance at every size; mse: the mean over channels and positions, ARF's "

@@ -177,26 +177,29 @@ def reconstruct_to_folder(data: str | Path, out: str | Path, config: Reconstruct
     checkpoint()
     model = trainer.export_gaussians()
     write_ply(out / "point_cloud.ply", model)
+    timing = estimate.record()
+    if timing["first_estimate_s"] is not None:
+        report_extra["estimated_seconds"] = timing["first_estimate_s"]  # this session's, as printed first
+    report_extra["time_estimate"] = timing
     try:
-        return _finish(trainer, model, scene, cfg, data, out, seconds, estimate, report_extra, fingerprint, log)
+        return write_reconstruction(trainer, model, out, data, seconds, report_extra, fingerprint, log)
     except BaseException as exc:
         if not stop.is_stop(exc):
             raise
         raise Stopped(trainer.step_count, ckpt_path, finished=True) from None
 
 
-def _finish(trainer, model, scene, cfg: ReconstructConfig, data: Path, out: Path, seconds: float, estimate,
-            report_extra: dict, fingerprint: dict, log: Callable[[str], None]) -> dict[str, Any]:
-    """After the last step (its checkpoint and model saved): the measures, the renders and the report."""
+def write_reconstruction(trainer, model, out: Path, data: Path, seconds: float, report_extra: dict,
+                         fingerprint: dict, log: Callable[[str], None]) -> dict[str, Any]:
+    """What a finished reconstruction writes beside its model (``model``, the trainer's, saved): the train and test
+    measures, the renders and contact sheet (``_write_results``) and OUT/report.json, which returns. ``seconds``: the
+    run's time; ``report_extra``: what was measured before its first step and while it ran; ``fingerprint``: its
+    data's. The console's job and the viewer's stage both end with it."""
     from training.core.atomic_write import atomic_open
     from training.core.version import version
     from training.reconstruct.regularizers import scale_stats
 
-    timing = estimate.record()
-    if timing["first_estimate_s"] is not None:
-        report_extra["estimated_seconds"] = timing["first_estimate_s"]  # this session's, as printed first
-    report_extra["time_estimate"] = timing
-
+    scene, cfg = trainer.scene, trainer.config
     train = trainer.evaluate(scene.train_indices)
     test = trainer.evaluate(scene.test_indices)
     views = _write_results(trainer, out, scene.test_indices or scene.train_indices, log)

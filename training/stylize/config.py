@@ -41,7 +41,7 @@ RANGES: dict[str, tuple[float, float, bool]] = {
 WHOLE_NUMBERS = ("k", "balance_every", "sinkhorn_iters", "iters_per_view", "min_total_iters", "seed", "virtual_views",
                  "max_side")
 NUMBERS = ("tau", "epsilon", "lambda_guide", "lambda_style", "lambda_content", "lr", "style_scale", "lambda_tv",
-           "lr_final", "structure_budget")
+           "lr_final", "structure_budget", "lambda_moments")
 FLAGS = ("dc_only", "color_transfer", "measure_balance")
 OPTIONAL = ("iters_per_view", "min_total_iters", "max_side", "lambda_style", "lr")
 
@@ -61,6 +61,7 @@ class StylizeConfig:
     lambda_style: float | None = None  # None: DEFAULT_LAMBDA_STYLE[loss] (30 for CCFT)
     lambda_content: float = D.LAMBDA_CONTENT  # the content weight (where the structure budget starts it)
     structure_budget: float = D.STRUCTURE_BUDGET  # the structure drift the content weight holds; 0: a constant weight
+    lambda_moments: float = D.LAMBDA_MOMENTS  # the painting's per-channel feature statistics (objective.moment_loss)
     content_norm: str = "relative"  # relative: ||X - X^||^2 / ||X^||^2 | mse: ARF's mean (objective.py)
     content_source: str = D.CONTENT_SOURCE  # photo: the photos (ARF) | render: the input model's renders
     style_scale: float = D.STYLE_SCALE  # the painting's long side / the render's (stroke size)
@@ -129,6 +130,7 @@ class StylizeConfig:
                   ("balance_every", self.balance_every >= 1, "at least 1"),
                   ("lambda_content", self.lambda_content >= 0, "at least 0"),
                   ("structure_budget", self.structure_budget >= 0, "at least 0"),
+                  ("lambda_moments", self.lambda_moments >= 0, "at least 0"),
                   ("style_scale", 0 < self.style_scale <= MAX_STYLE_SCALE, f"in (0, {MAX_STYLE_SCALE:g}]"),
                   ("lambda_tv", self.lambda_tv >= 0, "at least 0"),
                   ("lr_final", 0 < self.lr_final <= 1, "in (0, 1]"),

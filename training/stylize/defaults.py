@@ -54,6 +54,8 @@ DC_ONLY = True
 # The structure budget (structure_budget.py): the drift of the render's structure from its content that the content
 # weight is steered to hold; 0 holds nothing (a constant weight)
 STRUCTURE_BUDGET = 0.0
+# The feature statistics term (objective.moment_loss); 0 leaves it out
+LAMBDA_MOMENTS = 0.0
 
 LOSSES = ("ccft", "nnfm", "gram")
 # Style weight per loss. NNFM's loss is also a mean cosine distance per rendered feature, on the same scale as
@@ -116,10 +118,10 @@ DEFAULT_RECIPE = "balanced"
 RECIPE_SETTINGS = {
     "balanced": {"content_norm": "relative", "lambda_content": LAMBDA_CONTENT, "k": K, "lambda_tv": LAMBDA_TV,
                  "dc_only": DC_ONLY, "style_scale": STYLE_SCALE, "content_source": CONTENT_SOURCE, "lr": LR,
-                 "lr_final": LR_FINAL, "structure_budget": STRUCTURE_BUDGET},
+                 "lr_final": LR_FINAL, "structure_budget": STRUCTURE_BUDGET, "lambda_moments": LAMBDA_MOMENTS},
     "paper": {"content_norm": "mse", "lambda_content": 0.005, "k": 16, "lambda_tv": 0.0, "dc_only": False,
               "style_scale": 1.0, "content_source": "photo", "lr": 0.0025, "lr_final": 1.0,
-              "structure_budget": 0.0},
+              "structure_budget": 0.0, "lambda_moments": 0.0},
 }
 # Where each of the paper recipe's values comes from (paper.tex line numbers)
 RECIPE_SOURCES = {
@@ -133,4 +135,5 @@ RECIPE_SOURCES = {
     "lr": "where paper.tex is silent, 3DGS's colour rate (feature_lr)",
     "lr_final": "where paper.tex is silent, 3DGS's constant colour rate",
     "structure_budget": "the paper holds no budget: a constant content weight",
+    "lambda_moments": "from paper.tex 226: CCFT and the content term alone",
 }

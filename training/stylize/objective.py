@@ -29,7 +29,6 @@ from dataclasses import dataclass
 
 import torch
 
-from training.stylize.defaults import CONTENT_NORMS  # noqa: F401  (the names content_loss takes)
 
 
 def content_loss(feats: torch.Tensor, content: torch.Tensor, norm: str) -> torch.Tensor:
@@ -38,6 +37,17 @@ def content_loss(feats: torch.Tensor, content: torch.Tensor, norm: str) -> torch
     if norm == "mse":
         return diff.mean()
     return diff.sum() / content.pow(2).sum().clamp_min(1e-12)
+
+
+def moment_loss(feats: torch.Tensor, style: torch.Tensor) -> torch.Tensor:
+    """How far the render's features' per-channel means and standard deviations are from the painting's (1, C, h, w)
+    each, relative to the painting's: ||mu_r - mu_p||^2 / ||mu_p||^2 + ||sd_r - sd_p||^2 / ||sd_p||^2. CCFT compares
+    directions (cosine), so it says which painting feature a render feature becomes but not how strongly it fires;
+    this term carries the painting's contrast and texture energy."""
+    f, s = feats.flatten(2)[0], style.flatten(2)[0]
+    mf, sf, ms, ss = f.mean(1), f.std(1), s.mean(1), s.std(1)
+    return (mf - ms).pow(2).sum() / ms.pow(2).sum().clamp_min(1e-12) + \
+        (sf - ss).pow(2).sum() / ss.pow(2).sum().clamp_min(1e-12)
 
 
 def total_variation(image: torch.Tensor) -> torch.Tensor:
@@ -64,19 +74,21 @@ class Gradients:
         return self.content_norm / self.style_norm
 
 
-def render_gradients(render: torch.Tensor, terms: dict[str, torch.Tensor], measure_balance: bool) -> Gradients:
+def render_gradients(render: torch.Tensor, terms: dict[str, torch.Tensor], measure_balance: bool,
+                     apart: tuple[str, ...] = ("content", "tv")) -> Gradients:
     """d(sum of ``terms``)/d ``render`` (a leaf the terms were computed from), with the terms' norms taken apart
-    when ``measure_balance``. ``terms``: "style", "content" and optionally "tv", each already weighted.
+    when ``measure_balance``. ``terms``: "style" and the others (terms.py), each already weighted; ``apart``: those
+    whose gradients are not the style side's (the content, the total variation).
 
     The total is the gradient of the sum whether or not the balance is measured, so measuring it (or how often)
-    cannot change a run: the content's and the total variation's gradients are taken on their own and the style's
-    is what remains of the total (one more VGG backward pass, not two)."""
+    cannot change a run: the gradients of the terms ``apart`` are taken on their own and the style's is what
+    remains of the total (one more VGG backward pass, not two)."""
     loss = sum(terms.values())
     if not measure_balance:
         (total,) = torch.autograd.grad(loss, render)
         return Gradients(total)
     parts: dict[str, torch.Tensor] = {}
-    for name in ("content", "tv"):
+    for name in apart:
         if name in terms and terms[name].requires_grad:
             (parts[name],) = torch.autograd.grad(terms[name], render, retain_graph=True)
     (total,) = torch.autograd.grad(loss, render)

@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import json
 import time
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Callable
 
@@ -63,7 +64,6 @@ def stylize_to_folder(model: Path, data: Path, style: Path, out: Path, config: S
     from training.scene.loader import load_scene
     from training.stylize.checkpoint import (CHECKPOINT_NAME, load_stylize_checkpoint, save_stylize_checkpoint,
                                              stylize_fingerprint)
-    from training.stylize.style_distance import style_distance
     from training.stylize.style_image import load_style_image
 
     if warn is None:
@@ -97,11 +97,8 @@ def stylize_to_folder(model: Path, data: Path, style: Path, out: Path, config: S
         saved = state["pipeline"] if state is not None else {}
         if "distance_start" in saved:
             distance_start, distance_pre = saved["distance_start"], saved["distance_pre"]
-        else:  # before the first step (or a checkpoint the viewer wrote: measured before its state is loaded)
-            t0 = time.perf_counter()
-            distance_start = style_distance(stylizer, sh=stylizer.original_sh)
-            distance_pre = style_distance(stylizer) if stylizer.pre_transform is not None else distance_start
-            stylizer.times.add("style_distance", time.perf_counter() - t0)
+        else:  # before the first step
+            distance_start, distance_pre = start_distances(stylizer)
     if state is not None:
         stylizer.load_state(state["trainer"])
     earlier = {"stylize_loop": saved.get("stylize_seconds", 0.0), "total": saved.get("total_seconds", 0.0)}
@@ -154,10 +151,12 @@ def stylize_to_folder(model: Path, data: Path, style: Path, out: Path, config: S
         raise stop.StopRequested("before the first iteration; nothing saved") from None
     if stylize_seconds is None:  # resumed after the stylization had finished
         stylize_seconds = earlier["stylize_loop"]
+    record = StylizationRecord(model, data, style, fingerprint, distance_start, distance_pre,
+                               load_seconds=t_loaded - t_start, loop_seconds=stylize_seconds,
+                               earlier_seconds=earlier["total"], started=t_start,
+                               resumed_at=None if state is None else start_iteration)
     try:
-        return _finish(stylizer, scene, style_image, model, data, style, out, metrics, report_extra, fingerprint,
-                       distance_start, distance_pre, stylize_seconds, earlier, state, start_iteration, t_start,
-                       t_loaded)
+        return write_stylization(stylizer, out, record, metrics, report_extra)
     except BaseException as exc:
         if not stop.is_stop(exc):
             raise
@@ -166,16 +165,50 @@ def stylize_to_folder(model: Path, data: Path, style: Path, out: Path, config: S
                                  "renders)") from None
 
 
-def _finish(stylizer: Stylizer, scene, style_image, model: Path, data: Path, style: Path, out: Path, metrics,
-            report_extra, fingerprint, distance_start, distance_pre, stylize_seconds: float, earlier: dict, state,
-            start_iteration: int, t_start: float, t_loaded: float) -> dict[str, Any]:
-    """After the stylization (its model and checkpoint kept): the measures, the renders, the sheet and the report;
-    the checkpoint goes once the report is written."""
+@dataclass
+class StylizationRecord:
+    """What a stylization's report holds beyond the finished stylizer: its inputs, the fingerprint of them, the
+    style distances measured before its first step (``start_distances``), and its times: loading the inputs, the
+    loop (this session's and earlier ones'), a resumed session's earlier total, when this session ``started``
+    (``time.perf_counter``) and the iteration it resumed at."""
+
+    model: Path
+    data: Path
+    style: Path
+    fingerprint: dict[str, Any]
+    distance_start: dict[str, float]
+    distance_pre: dict[str, float]
+    load_seconds: float = 0.0
+    loop_seconds: float = 0.0
+    earlier_seconds: float = 0.0
+    started: float = field(default_factory=time.perf_counter)
+    resumed_at: int | None = None
+
+
+def start_distances(stylizer: Stylizer) -> tuple[dict[str, float], dict[str, float]]:
+    """The style distances of the input model's renders and of the renders after the pre colour transfer, taken
+    before the first step (the report's style_distance starts from them)."""
+    from training.stylize.style_distance import style_distance
+
+    t0 = time.perf_counter()
+    start = style_distance(stylizer, sh=stylizer.original_sh)
+    pre = style_distance(stylizer) if stylizer.pre_transform is not None else start
+    stylizer.times.add("style_distance", time.perf_counter() - t0)
+    return start, pre
+
+
+def write_stylization(stylizer: Stylizer, out: Path, record: StylizationRecord, metrics=None,
+                      report_extra: Callable[[], dict[str, Any]] | None = None) -> dict[str, Any]:
+    """What a finished stylization writes beside its model (saved): the measures (``metrics(stylizer)``, when
+    given), the renders of every view, the before/after sheet and OUT/report.json, which returns; the checkpoint
+    goes once the report is written. The console's job and the viewer's stage both end with it."""
     from training.core.atomic_write import atomic_open, make_output_dir
     from training.scene.image_io import write_image
     from training.stylize.checkpoint import CHECKPOINT_NAME
     from training.stylize.style_distance import style_distance
 
+    scene, style_image, stylize_seconds = stylizer.scene, stylizer.style_image, record.loop_seconds
+    distance_start, distance_pre = record.distance_start, record.distance_pre
     ckpt_path = out / CHECKPOINT_NAME
     first = stylizer.history[0] if stylizer.history else None
     utilisation = stylizer.utilisation()
@@ -207,7 +240,7 @@ def _finish(stylizer: Stylizer, scene, style_image, model: Path, data: Path, sty
     last = stylizer.history[-1] if stylizer.history else None
     report: dict[str, Any] = {
         "splatstyler_version": version(),
-        "model": str(model), "data": str(data), "style": str(style), "output": str(out),
+        "model": str(record.model), "data": str(record.data), "style": str(record.style), "output": str(out),
         "config": stylizer.config_dict(),
         # which recipe ran, every setting the two recipes set differently, and where this run left its recipe
         "recipe": {"name": stylizer.config.recipe, "settings": recipe_settings(stylizer.config),
@@ -248,12 +281,12 @@ def _finish(stylizer: Stylizer, scene, style_image, model: Path, data: Path, sty
             "post": stylizer.post_transform.to_dict() if stylizer.post_transform else None,
         },
         "iterations_per_second": stylizer.iteration / stylize_seconds if stylize_seconds > 0 else None,
-        "time_s": {"load_inputs": t_loaded - t_start, **stylizer.times.totals,
-                   "stylize_loop": stylize_seconds, "total": earlier["total"] + time.perf_counter() - t_start},
+        "time_s": {"load_inputs": record.load_seconds, **stylizer.times.totals, "stylize_loop": stylize_seconds,
+                   "total": record.earlier_seconds + time.perf_counter() - record.started},
         "renders": render_names,
         "contact_sheet": CONTACT_SHEET,
-        "fingerprint": fingerprint,
-        "resumed_at_iteration": None if state is None else start_iteration,
+        "fingerprint": record.fingerprint,
+        "resumed_at_iteration": record.resumed_at,
     }
     if report_extra is not None:
         report.update(report_extra())

@@ -5,8 +5,9 @@ content and style gradients."""
 from __future__ import annotations
 
 from training.core.status import StylizeStatus, TrajectoryStop, scalars
+from training.stylize.terms import LOSS_KEYS
 
-LOSSES = ("loss", "style_loss", "content_loss", "grad_style", "grad_content")
+LOSSES = LOSS_KEYS + ("grad_style", "grad_content")
 UTILISATION = ("utilisation", "column_entropy", "column_entropy_normalised", "reachable_fraction",
                "distinct_fraction", "distinct_count")
 

@@ -14,10 +14,11 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 import torch
 
-from training.stylize.objective import content_loss, render_gradients, total_variation
+from training.stylize.objective import render_gradients
 from training.stylize.optimizer import colour_learning_rate
 from training.stylize.plan_readouts import capacity_map
 from training.stylize.structure_budget import structure_drift
+from training.stylize.terms import TERMS, StepInputs
 
 if TYPE_CHECKING:
     from training.stylize.trainer import Stylizer
@@ -71,11 +72,14 @@ def gradient_step(st: Stylizer, timer: StepTimer) -> tuple[dict[str, Any], np.nd
     style_loss, stats = st.style_loss(feats, style, source=position, settings=cfg)
     last = getattr(st.style_loss, "last_result", None)
     capacity = capacity_map(last, style.shape[2:])
-    content_term = content_loss(feats, content, cfg.content_norm)
-    content_weight = cfg.lambda_content * st.budget.scale  # the structure budget's weight (structure_budget.py)
-    terms = {"style": cfg.style_weight * style_loss, "content": content_weight * content_term}
-    if cfg.lambda_tv > 0:
-        terms["tv"] = cfg.lambda_tv * total_variation(image)
+    # the content weight the structure budget gives this step (structure_budget.py)
+    inputs = StepInputs(feats, content, style, image, cfg.lambda_content * st.budget.scale)
+    terms, values = {"style": cfg.style_weight * style_loss}, {}
+    for term in TERMS:
+        weight = term.weight(cfg, inputs)
+        if weight > 0 or term.name == "content":  # the content's value is reported at any weight
+            values[term.name] = term.value(cfg, inputs)
+            terms[term.name] = weight * values[term.name]
     loss = sum(terms.values())
     timer.stop("loss")
     timer.start()
@@ -90,7 +94,8 @@ def gradient_step(st: Stylizer, timer: StepTimer) -> tuple[dict[str, Any], np.nd
     st.budget.update(drift, cfg.structure_budget)
     timer.stop("structure", sync=False)
     timer.start()
-    grads = render_gradients(image, terms, cfg.measure_balance and st.iteration % cfg.balance_every == 0)
+    grads = render_gradients(image, terms, cfg.measure_balance and st.iteration % cfg.balance_every == 0,
+                             apart=tuple(t.name for t in TERMS if not t.style_side))
     timer.stop("vgg_backward")
     timer.start()
     st.optimizer.zero_grad(set_to_none=True)
@@ -99,9 +104,9 @@ def gradient_step(st: Stylizer, timer: StepTimer) -> tuple[dict[str, Any], np.nd
 
     record = {
         "iteration": st.iteration, "loss": float(loss.detach()), "style_loss": float(style_loss.detach()),
-        "content_loss": float(content_term.detach()),
+        **{f"{t.name}_loss": float(values[t.name].detach()) if t.name in values else None for t in TERMS},
         # the structure drift of this view's render from its content, and the content weight the step used
-        "structure_drift": drift, "content_weight": content_weight,
+        "structure_drift": drift, "content_weight": inputs.content_weight,
         # the norms of the style and content terms' gradients on the render (None: not measured)
         "grad_style": grads.style_norm, "grad_content": grads.content_norm,
         "content_to_style": grads.content_to_style,

@@ -44,6 +44,7 @@ from training.stylize.scene_match import check_model_matches_scene, check_render
 from training.stylize.style_image import check_style_array
 from training.stylize.status import UTILISATION, stylize_status
 from training.stylize.structure_budget import StructureBudget
+from training.stylize.terms import LOSS_KEYS
 from training.stylize.step import StageTimes, StepTimer, gradient_step
 from training.stylize.stylized_model import StylizedModel
 from training.stylize.view_schedule import ViewSchedule
@@ -214,8 +215,8 @@ class Stylizer(LiveTrainer):
         for key, value in timer.timings.items():
             self.times.add(f"stylize/{key}", value)
         self.last_stats = result
-        self.history.append({k: result[k] for k in ("iteration", "loss", "style_loss", "content_loss", "grad_style",
-                                                    "grad_content", "structure_drift", "content_weight")})
+        self.history.append({k: result[k] for k in ("iteration", *LOSS_KEYS, "grad_style", "grad_content",
+                                                    "structure_drift", "content_weight")})
         self.iteration += 1
         moved = self.views.advance(self.config)
         self._publish_status()

@@ -13,9 +13,11 @@ OUT/stylize_checkpoint.pt (resumable with ``splatstyler stylize ... --resume``).
 next stage. The checkpoints hold the fingerprint of their inputs (training/scene/fingerprint.py), which a resume
 checks.
 
-``outputs`` (Stage.outputs) writes the rest of what the command line writes once a stage has finished (the demo's
-window: report.json, renders, contact sheets). For it a reconstruction measures the model it starts from and keeps
-that and its time in the checkpoint, as the CLI does, so that a report made from the checkpoint is the CLI's.
+``outputs`` writes the rest of what the command line writes once a stage has finished (the demo's window:
+report.json, renders, contact sheets), through the same library steps the commands end with
+(training/reconstruct/pipeline.py ``write_reconstruction``, training/stylize/pipeline.py ``write_stylization``): for
+it a stage measures at its start what the command measures before its first step (a reconstruction its first
+scores, a stylization its start style distances) and hands that over with the finished trainer.
 """
 
 from __future__ import annotations
@@ -105,7 +107,11 @@ def reconstruct_stage(data: str | Path, out: str | Path, preset: str = "quick", 
         write_ply(out / "point_cloud.ply", trainer.export_gaussians())
         return out / "point_cloud.ply"
 
-    return Stage("reconstruct", build, save, outputs)
+    def stage_outputs(trainer, saved, say) -> None:
+        outputs(trainer, saved, say, seconds=time.perf_counter() - started[0], report_extra=dict(report_extra),
+                fingerprint=dict(fingerprint))
+
+    return Stage("reconstruct", build, save, None if outputs is None else stage_outputs)
 
 
 def stylize_stage(data: str | Path, style: str | Path, out: str | Path, config=None, model: str | Path | None = None,
@@ -114,24 +120,35 @@ def stylize_stage(data: str | Path, style: str | Path, out: str | Path, config=N
     function giving the one to use, called when the stage begins (the window's settings as they are then: a run
     that reconstructs first stylizes with what the user set meanwhile); ``mask`` (N,) bool: only those Gaussians
     change."""
+    import time
+
     out = Path(out)
+    records: list = []  # what the report keeps beyond the stylizer (with ``outputs``): measured as the CLI does
 
     def build(previous):
         from training.model.model_io import read_model
         from training.scene.loader import load_scene
-        from training.stylize.pipeline import choose_downscale
+        from training.stylize.checkpoint import stylize_fingerprint
+        from training.stylize.pipeline import StylizationRecord, choose_downscale, start_distances
         from training.stylize.style_image import load_style_image
         from training.stylize.config import StylizeConfig
         from training.stylize.trainer import Stylizer
 
+        t0 = time.perf_counter()
         source = Path(model) if model is not None else previous
         if source is None:
             raise ValueError("nothing to stylize: open a model or reconstruct first")
         cfg = replace(config() if callable(config) else config or StylizeConfig(preset="quick"))
         painting = load_style_image(style)
         scene = load_scene(data, downscale=choose_downscale(Path(data), cfg.render_max_side))
-        return Stylizer(read_model(source), scene, painting, cfg, vgg_weights=vgg_weights, model_name=source,
-                        mask=mask)
+        stylizer = Stylizer(read_model(source), scene, painting, cfg, vgg_weights=vgg_weights, model_name=source,
+                            mask=mask)
+        if outputs is not None:
+            loaded = time.perf_counter() - t0
+            records[:] = [StylizationRecord(source, Path(data), Path(style),
+                                            stylize_fingerprint(source, data, style, cfg, mask),
+                                            *start_distances(stylizer), load_seconds=loaded, started=t0)]
+        return stylizer
 
     def save(trainer, finished: bool, cancel) -> Path:
         from training.core.messages import Cancelled
@@ -153,4 +170,9 @@ def stylize_stage(data: str | Path, style: str | Path, out: str | Path, config=N
                 trainer.model_name, data, style, trainer.config, trainer.mask))
         return out / "point_cloud.ply"
 
-    return Stage("stylize", build, save, outputs)
+    def stage_outputs(trainer, saved, say) -> None:
+        record = records[0]
+        record.loop_seconds = sum(s for name, s in trainer.times.totals.items() if name.startswith("stylize/"))
+        outputs(trainer, saved, say, record)
+
+    return Stage("stylize", build, save, None if outputs is None else stage_outputs)

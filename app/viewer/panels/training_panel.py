@@ -13,6 +13,7 @@ from app.viewer.files import open_model
 from app.viewer.live.runs import start_reconstruction, start_stylization, stylize_progress
 from app.viewer.live.sfm_run import phase_time_left
 from app.viewer.panels.text_colours import RED
+from training.stylize.terms import LOSS_KEYS
 
 BALANCE_PLOT_H = 150.0
 
@@ -125,7 +126,7 @@ def training_panel(doc, session, ui) -> None:
 
 
 CURVES = {"reconstruct": ("loss", "l1", "depth", "shape", "size"),
-          "stylize": ("loss", "style_loss", "content_loss"),
+          "stylize": LOSS_KEYS,  # the style loss and each term of the objective (training/stylize/terms.py)
           "sfm": ("points",)}  # the sparse points over the photos registered
 
 
