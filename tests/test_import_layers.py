@@ -439,3 +439,36 @@ def test_importing_the_document_and_the_live_session_loads_no_ui():
     proc = subprocess.run([sys.executable, "-c", code], cwd=ROOT, capture_output=True, text=True, timeout=300)
     assert proc.returncode == 0, proc.stderr
     assert proc.stdout.strip() == "[]", proc.stdout
+
+
+def documented_layers() -> list[str]:
+    """The layer list of docs/architecture.md (top first): the first word of each line of the block after the
+    ``layers`` marker."""
+    text = (ROOT / "docs" / "architecture.md").read_text()
+    block = text.split("<!-- layers", 1)[1].split("```", 2)[1]
+    return [line.split()[0] for line in block.strip().splitlines() if line.strip()]
+
+
+def test_the_architecture_doc_is_the_import_order():
+    """docs/architecture.md draws the layers as an ordered list; every import of every module (those inside
+    functions too) goes to its own layer or one under it, and the list names every package of the engine."""
+    layers = documented_layers()
+    assert set(layers) >= {"app", "renderer_gl"} | {f"training.{p}" for p in TRAINING_RANKS}, layers
+
+    def layer_of(module: str) -> int | None:
+        found = [i for i, name in enumerate(layers) if is_under(module, name)]
+        return max(found, key=lambda i: len(layers[i])) if found else None
+
+    known = project_modules()
+    out = []
+    for name, path in sorted(known.items()):
+        mine = layer_of(name)
+        if mine is None:
+            continue
+        for line, imported in imports_of(path):
+            for target in resolved(imported, known):
+                theirs = layer_of(target)
+                if theirs is not None and theirs < mine:
+                    out.append(f"{path.relative_to(ROOT)}:{line} imports {target}: {layers[mine]} is drawn under "
+                               f"{layers[theirs]}")
+    assert not out, "\n".join(out)
