@@ -66,7 +66,7 @@ class StylizeConfig:
     content_source: str = D.CONTENT_SOURCE  # photo: the photos (ARF) | render: the input model's renders
     style_scale: float = D.STYLE_SCALE  # the painting's long side / the render's (stroke size)
     lambda_tv: float = D.LAMBDA_TV  # total variation of the render
-    lr: float | None = None  # Adam learning rate of sh0 (shN: lr / 20); None: DEFAULT_LR
+    lr: float | None = D.LR  # Adam learning rate of sh0 (shN: lr / 20); None: DEFAULT_LR
     lr_final: float = D.LR_FINAL  # the rate decays exponentially to lr * lr_final at the last iteration
     measure_balance: bool = True  # the style and content gradients' norms on the render (the balance) ...
     vgg_precision: str = D.VGG_PRECISION  # float32 | bfloat16 | auto (bfloat16 on a CPU that has it natively)

@@ -14,7 +14,7 @@ from app.viewer.panels.text_colours import GREY
 from app.viewer.state import REGIONS
 from training.core.status import StylizeStatus
 from training.stylize import defaults as D
-from training.stylize.config import RANGES
+from training.stylize.config import RANGES, recipe_departures, recipe_settings
 
 # Settings the stylizer fixes when it starts; the panel greys them during a run and says why.
 RESTART = "fixed while a stylization runs: it shapes the run from its first step (stop and start again)"
@@ -58,6 +58,7 @@ def style_panel(doc, session, ui) -> None:
     if changed:
         set_stylize(session, ui, loss=losses[i])
     balance_slider(session, ui, cfg)
+    recipe_line(cfg)
     lo, hi, _ = RANGES["style_scale"]
     changed, scale = imgui.slider_float("stroke size", float(cfg.style_scale), lo, hi, "%.2gx",
                                         imgui.SliderFlags_.logarithmic)
@@ -121,9 +122,28 @@ def balance_slider(session, ui, cfg) -> None:
                            "the two terms' gradients as the run goes")
 
 
+def recipe_line(cfg) -> None:
+    """Which recipe the settings come from and where they leave it; its tooltip lists every setting the two recipes
+    set differently, with where the paper's come from (training/stylize/defaults.py)."""
+    changed = recipe_departures(cfg)
+    imgui.text(f"{cfg.recipe} recipe" + (": changed " + ", ".join(f"{k} {v:g}" if isinstance(v, float) else
+                                                                    f"{k} {v}" for k, (_, v) in changed.items())
+                                         if changed else ""))
+    if imgui.is_item_hovered():
+        lines = [f"{name}: " + ", ".join(f"{r} {v}" for r, v in row.items() if r != "value")
+                 + f" ({D.RECIPE_SOURCES[name]})" for name, row in recipe_settings(cfg).items()]
+        imgui.set_tooltip("the settings the two recipes set differently:\n" + "\n".join(lines))
+
+
 def fixed_settings(session, ui, cfg, live: bool) -> None:
-    """Preset, view order, schedule, virtual views, colour transfer: greyed during a run."""
+    """Recipe, preset, view order, schedule, virtual views, colour transfer: greyed during a run."""
     imgui.begin_disabled(live)
+    recipes = list(D.RECIPES)
+    changed, i = imgui.combo("recipe", recipes.index(cfg.recipe), recipes)
+    if changed:
+        set_stylize(session, ui, recipe=recipes[i], **D.RECIPE_SETTINGS[recipes[i]])
+    imgui.set_item_tooltip("the settings to start from: balanced (this project's) or paper (the paper's stated "
+                           "objective and settings); the sliders change them from there")
     presets = list(D.PRESETS)
     changed, i = imgui.combo("stylize preset", presets.index(cfg.preset), presets)
     if changed:
