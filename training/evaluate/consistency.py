@@ -32,6 +32,7 @@ import numpy as np
 import torch
 import torch.nn.functional as F
 
+from training.core import stop
 from training.scene.correspondence import (DEPTH_TOLERANCE, MIN_ALPHA, sample_bilinear, seen_by_source,  # noqa: F401
                                            warp_points)
 MIN_VALID_PIXELS = 16  # a pair with fewer valid pixels gives no RMSE/LPIPS (its valid fraction still counts)
@@ -141,9 +142,11 @@ def consistency_metrics(images, depths, alphas, cameras, order, gap: int, lpips=
     with_lpips = set(range(len(pairs)))
     if lpips_pairs is not None and len(pairs) > lpips_pairs:
         with_lpips = {int(i) for i in np.linspace(0, len(pairs) - 1, lpips_pairs).round()}
-    results = [warp_consistency(images[t], depths[t], alphas[t], cameras[t], images[s], depths[s], alphas[s],
-                                cameras[s], lpips if k in with_lpips else None, min_alpha, depth_tolerance)
-               for k, (t, s) in enumerate(pairs)]
+    results = []
+    for k, (t, s) in enumerate(pairs):
+        stop.check()
+        results.append(warp_consistency(images[t], depths[t], alphas[t], cameras[t], images[s], depths[s], alphas[s],
+                                        cameras[s], lpips if k in with_lpips else None, min_alpha, depth_tolerance))
 
     def mean(key):
         values = [r[key] for r in results if r[key] is not None]

@@ -51,6 +51,7 @@ from collections.abc import Sequence
 import numpy as np
 import torch
 
+from training.core import stop
 from training.evaluate.consistency import consistency_metrics
 from training.evaluate.content_metrics import blurred_luminance_psnr, structure_distance
 from training.evaluate.match_agreement import match_agreement
@@ -148,6 +149,7 @@ def style_and_content(stylized, original, original_pre_ct, painting: np.ndarray,
     per_view = {"stylized": [], "original": [], "pre_ct": []}
     structure, psnr = [], []
     for i in views:
+        stop.check()
         if original[i] is None or (original_pre_ct is not None and original_pre_ct[i] is None):
             raise ValueError(f"view {i} is a style view: its original (and pre-colour-transfer) render is needed")
         image = np.asarray(stylized[i])[..., :3]
