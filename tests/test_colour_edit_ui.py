@@ -401,6 +401,11 @@ def test(ctx):
     # the run's result opened from the Training panel's list: shown as it was when stopped, its original offered
     open_window(ctx, "Training")
     ctx.item_click("Open##run0")
+    # the strengths typed in are unsaved edits: opening another model asks first (Discard: open it without them)
+    ctx.yield_(2)
+    found["asked"] = ctx.item_exists("//Unsaved edits/Discard")
+    ctx.item_click("//Unsaved edits/Discard")
+    ctx.yield_(2)
     found["opened"] = app.ui.paths.model
     found["running_trainer"] = app.session.has_trainer
     np.save(OUT / "opened_run.npy", still(ctx))
@@ -427,6 +432,7 @@ Path(os.environ["RESULT"]).write_text(json.dumps(found))
     assert torch.equal(read_ply(tmp_path / "strength_1.ply").sh, saved.sh)
     assert not torch.equal(original.sh, saved.sh)
     assert found["undo_steps"] == 4  # each strength typed in is one undo step
+    assert found["asked"], "opening a run over unsaved edits did not ask"
     assert found["opened"] == found["runs"][-1] and not found["running_trainer"]
     assert np.array_equal(np.load(tmp_path / "opened_run.npy").astype(np.int16), stylized)
     assert found["original_offered"] == str(model)

@@ -73,8 +73,8 @@ def test_demo_in_a_window_writes_each_stage_as_it_ends_and_keeps_what_it_has_on_
                                  "--iters-per-view", "50"], stdout=f, stderr=subprocess.STDOUT, env=env)
     try:
         t0 = time.time()
-        # the stylizer is being built once its VGG weights are named (training/stylize/vgg_weights.py)
-        while "VGG-16" not in log.read_text():
+        # the stylizer is built once its recipe line is printed: the stop comes while it steps
+        while "stylizing after" not in log.read_text():
             assert proc.poll() is None, log.read_text()[-3000:]
             assert time.time() - t0 < 900, "the stylization did not begin"
             time.sleep(0.5)
@@ -92,6 +92,7 @@ def test_demo_in_a_window_writes_each_stage_as_it_ends_and_keeps_what_it_has_on_
     recon = json.loads((out / "reconstruction" / "report.json").read_text())
     assert recon["iterations"] == 10 and np.isfinite(recon["test_psnr"]) and "initial_psnr" in recon
     assert (out / "stylized" / "point_cloud.ply").exists() and (out / "stylized" / "stylize_checkpoint.pt").exists()
+    assert "stylization stopped at step" in text, text[-3000:]
     from training.scene.image_io import read_image
 
     sheet = read_image(out / "contact_sheet.png")

@@ -132,6 +132,8 @@ def _in_viewer(args, data: Path, style: Path, out: Path, generated_scene: bool) 
     stopped_by = run_viewer(app)
     for path in app.session.saved:
         print(f"saved {path}")
+    for line in app.session.notes:  # what a stop left
+        print(line)
     # the run's own folder (stylized, or stylized_2... when an earlier demo's output is there)
     training, error = app.ui.training, app.ui.messages.error
     recon = Path(training.base_model or out / "reconstruction" / "point_cloud.ply")  # this run's folder

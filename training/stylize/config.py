@@ -184,6 +184,12 @@ def recipe_departures(config: StylizeConfig) -> dict[str, tuple]:
     return {name: (value, getattr(config, name)) for name, value in own.items() if getattr(config, name) != value}
 
 
+def recipe_line(config: StylizeConfig) -> str:
+    """The recipe a run uses, in words, with every recipe-set setting the run changed."""
+    changed = ", ".join(f"{k} {b}" for k, (a, b) in recipe_departures(config).items())
+    return f"the {config.recipe} recipe" + (f", changed: {changed}" if changed else "")
+
+
 def paper_schedule(kind: str, num_views: int) -> tuple[int, int]:
     """(iterations per view, minimum total iterations) of the paper for a scene kind and number of views."""
     if kind == "forward":

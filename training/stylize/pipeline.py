@@ -19,7 +19,7 @@ import numpy as np
 
 from training.core.errors import InputError
 from training.core.version import version
-from training.stylize.config import recipe_departures, recipe_settings
+from training.stylize.config import recipe_departures, recipe_line, recipe_settings
 from training.stylize.trainer import StylizeConfig, Stylizer
 
 SHEET_VIEWS = 4
@@ -108,8 +108,7 @@ def stylize_to_folder(model: Path, data: Path, style: Path, out: Path, config: S
         passes = stylizer.pass_progress()[1]
         where = "" if state is None else (f"; resuming from {ckpt_path} at iteration {stylizer.iteration}"
                                           + (", stylization finished" if stylizer.finished else ""))
-        changed = ", ".join(f"{k} {b}" for k, (a, b) in recipe_departures(config).items())
-        log(f"stylize: the {config.recipe} recipe" + (f", changed: {changed}" if changed else ""))
+        log(f"stylize: {recipe_line(config)}")
         log(f"stylize: {len(scene.cameras)} views ({stylizer.kind}), {len(stylizer.trajectory)} in the "
               f"trajectory, {stylizer.total_iters} iterations ({config.schedule}: {passes} "
               f"pass{'es' if passes != 1 else ''} along the trajectory) at "

@@ -138,13 +138,14 @@ class Stage:
     what the stage writes (reports, renders); ``say(line)`` puts a line in the window at once (a ``Said`` message).
     ``stopped(trainer)``, when given, is the one line that says what a stop before the stage finished left (SfM:
     nothing); it goes to the window and to ``LiveSession.notes``, which the console prints once the window is
-    closed."""
+    closed. ``began(trainer)``, when given, is the line said once the trainer is built (what the stage will do)."""
 
     name: str
     build: Callable[[Any], Any]
     save: Callable[[Any, bool, Callable[[], bool]], Any]
     outputs: Callable[[Any, Any, Callable[[str], None]], None] | None = None
     stopped: Callable[[Any], str] | None = None
+    began: Callable[[Any], str] | None = None
 
 
 @dataclass
@@ -463,6 +464,8 @@ class LiveSession:
                     self._trainer, self._building = trainer, False
                     pending, self._pending_config = self._pending_config, {}
                 self._take_pending(stage, trainer, pending)
+                if stage.began is not None:
+                    self._out.put(Said(stage.began(trainer), stage.name))
                 self._set(state="paused" if self._paused else "running", total=trainer.total_iters,
                           step=trainer.status().step)
                 self._train(trainer)

@@ -175,4 +175,18 @@ def stylize_stage(data: str | Path, style: str | Path, out: str | Path, config=N
         record.loop_seconds = sum(s for name, s in trainer.times.totals.items() if name.startswith("stylize/"))
         outputs(trainer, saved, say, record)
 
-    return Stage("stylize", build, save, None if outputs is None else stage_outputs)
+    def began(trainer) -> str:
+        from training.stylize.config import recipe_line
+
+        line = f"stylizing after {Path(style).name}: {recipe_line(trainer.config)}; {trainer.total_iters} steps"
+        if outputs is not None:  # a window that writes the console's outputs also prints the console's lines
+            print(line, flush=True)
+        return line
+
+    def stopped(trainer) -> str:
+        if trainer is None:
+            return f"stylization stopped before its first step: nothing written to {out}"
+        return (f"stylization stopped at step {trainer.status().step} of {trainer.total_iters}: the model so far "
+                f"and its checkpoint in {out} (`splatstyler stylize ... --resume` continues it)")
+
+    return Stage("stylize", build, save, None if outputs is None else stage_outputs, stopped, began)
