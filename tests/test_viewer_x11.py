@@ -198,9 +198,12 @@ Path(os.environ["RESULT"]).write_text(json.dumps(found))
     with_map = np.load(tmp_path / "painting_map.npy")
     painting = load_style_image(style)
     h, w = plain.shape[:2]
-    rows = (np.arange(h) * painting.shape[0] / h).astype(int)
-    cols = (np.arange(w) * painting.shape[1] / w).astype(int)
-    expected = (painting[rows][:, cols] * 255).round()
+    # the panel shows the painting smaller than it is, mipmapped: an area average of it
+    import torch
+
+    expected = torch.nn.functional.interpolate(torch.from_numpy(painting).permute(2, 0, 1)[None], size=(h, w),
+                                               mode="area")[0].permute(1, 2, 0).numpy()
+    expected = (expected * 255).round()
     assert psnr(plain, expected) >= 20.0, "the Style panel does not show the painting"
     assert float(np.abs(with_map.astype(float) - plain.astype(float)).mean()) > 3.0, "no capacity map drawn"
 

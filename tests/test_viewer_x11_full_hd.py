@@ -122,18 +122,29 @@ Path(os.environ["RESULT"]).write_text(json.dumps(found))
 
 
 KEYS_APP = """
-import faulthandler, json, os, sys
+import faulthandler, json, os, signal, sys
 faulthandler.enable()
+# every thread's stack on SIGUSR1 (pycolmap's glog takes SIGABRT and prints only the thread that got it)
+faulthandler.register(signal.SIGUSR1, all_threads=True)
 from pathlib import Path
+from imgui_bundle import hello_imgui, imgui
 from app.viewer.app import Paths, ViewerApp, run
 
 OUT = Path(os.environ["OUT"])
 app = ViewerApp(Paths(data=sys.argv[1], out=str(OUT / "out")), start="reconstruct", recon_iters=3000, downscale=4)
 gui = app.gui
 
+seen = {"ctrl": False, "q": False}
+
 def frame():
     gui()
-    state = {"step": app.session.status().step, "help": app.ui.window.help_rect, "rect": list(app.ui.window.view_rect)}
+    # what the window saw of the keys (a failure to close then says whether Ctrl+Q reached it)
+    seen["ctrl"] |= imgui.get_io().key_ctrl
+    seen["q"] |= imgui.is_key_down(imgui.Key.q)
+    state = {"step": app.session.status().step, "help": app.ui.window.help_rect, "rect": list(app.ui.window.view_rect),
+             "frames": app.frames, "exit": hello_imgui.get_runner_params().app_shall_exit,
+             "session": app.session.status().state, "questions": [q.title for q in app.ui.questions],
+             "unsaved": app.document.unsaved(), **seen}
     (OUT / "state.tmp").write_text(json.dumps(state))
     (OUT / "state.tmp").replace(OUT / "state.json")
 
@@ -230,8 +241,11 @@ def test_x11_full_hd_keys_overlay_lines_up_and_ctrl_q_closes_as_the_close_button
         try:
             code = proc.wait(120)
         except subprocess.TimeoutExpired:  # where every thread waits, from faulthandler, in the failure
-            proc.send_signal(signal.SIGABRT)
-            raise AssertionError(f"Ctrl+Q did not close the window in 120 s:\n{proc.communicate(60)[0][-8000:]}")
+            proc.send_signal(signal.SIGUSR1)
+            time.sleep(5)
+            proc.kill()
+            raise AssertionError(f"Ctrl+Q did not close the window in 120 s; the window's last state {state()}:\n"
+                                 f"{proc.communicate(60)[0][-8000:]}")
         output = proc.stdout.read()
     finally:
         if proc.poll() is None:

@@ -194,8 +194,9 @@ def painting(doc, session, ui) -> float:
     avail = imgui.get_content_region_avail()
     room = max(avail.y - ui.window.style_settings_h, MIN_PAINTING_LINES * imgui.get_text_line_height_with_spacing())
     height = min(avail.x * img.shape[0] / img.shape[1], room)
-    size = imgui.ImVec2(height * img.shape[1] / img.shape[0], height)
-    imgui.set_cursor_pos_x(imgui.get_cursor_pos_x() + (avail.x - size.x) / 2)  # a narrower picture is centred
+    # whole pixels: a picture placed between pixels is filtered twice (blurred) on screen
+    size = imgui.ImVec2(float(int(height * img.shape[1] / img.shape[0])), float(int(height)))
+    imgui.set_cursor_pos_x(float(int(imgui.get_cursor_pos_x() + (avail.x - size.x) / 2)))  # a narrower one is centred
     pos = imgui.get_cursor_screen_pos()
     imgui.image(imgui.ImTextureRef(tex.painting.glo), size)
     below = imgui.get_cursor_pos_y()
