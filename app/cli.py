@@ -94,7 +94,12 @@ def _run(argv: list[str]) -> int:
     from training.core import stop
     from training.core.errors import InputError
 
-    parser = build_parser()
+    try:
+        with stop.exit_at_once("while starting; nothing saved"):  # the commands' modules import torch: seconds
+            parser = build_parser()
+    except KeyboardInterrupt as stopped:
+        print(f"splatstyler: stopped by {stop_signals.signal_name()} {stopped}", file=sys.stderr)
+        return stop_signals.exit_code()
     args = parser.parse_args(join_negative_values(argv))
     if not getattr(args, "func", None):
         parser.print_help()

@@ -107,11 +107,16 @@ def check_arguments(args: argparse.Namespace) -> None:
 def run(args: argparse.Namespace) -> int:
     import sys
 
-    from app.viewer.app import ViewerApp, run as run_viewer
-    from app.viewer.platform import choose_platform
-    from app.viewer.state import Paths
+    from training.core import stop
 
     check_arguments(args)
+    with stop.exit_at_once("while the viewer was starting; nothing saved"):  # imports: seconds, nothing to keep
+        from app.commands import starting
+        from app.viewer.app import ViewerApp, run as run_viewer
+        from app.viewer.platform import choose_platform
+        from app.viewer.state import Paths
+
+        starting()
     from app.viewer.live.photos import photos_folder
     from app.viewer.state import PhotosState
 

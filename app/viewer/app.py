@@ -32,6 +32,7 @@ from app.viewer.live.session import Failed, LiveSession, Said, Saved, StageBegan
 from app.viewer.platform import choose_platform, prepare_glfw
 from app.viewer.state import Paths, Question, TrainingState, Ui
 from training.core.messages import ModelSnapshot, Noted, ViewMoved, Warned
+from training.core import stop
 
 IDLE_FPS = 4.0  # frames per second while nothing happens: each frame costs a running trainer CPU time
 # ... and while a trainer runs on software GL: a frame of the whole window there is about 65 ms of llvmpipe's CPU at
@@ -66,6 +67,9 @@ class ViewerApp:
         self.ctx = None
         self.frames = 0
         self.closed = False
+        # a signal's close, taken by the next frame: set from the handler before the first frame was drawn, Hello
+        # ImGui's exit would read that frame's draw data (for its last screenshot), which does not exist yet
+        self.close_requested = False
         self._start = start
         self._platform = "null"
         self._dropped: list[str] = []
@@ -476,6 +480,10 @@ class ViewerApp:
         from imgui_bundle import imgui
 
         ui = self.ui
+        if self.close_requested:
+            from imgui_bundle import hello_imgui
+
+            hello_imgui.get_runner_params().app_shall_exit = True
         self.frames += 1
         now = time.perf_counter()
         ui.window.frame_dt, self._last_frame_time = now - self._last_frame_time, now
@@ -598,7 +606,7 @@ def run(app: ViewerApp) -> int | None:
     so the save finishes."""
     import signal
 
-    from imgui_bundle import hello_imgui, immapp
+    from imgui_bundle import immapp
 
     prepare_glfw(choose_platform())
     # pycolmap's glog installs its own SIGTERM handler (a stack dump, no save) when it is first imported, which
@@ -612,9 +620,16 @@ def run(app: ViewerApp) -> int | None:
             return
         stopped_by.append(signum)
         print(f"splatstyler: {signal.Signals(signum).name} received: closing the window and saving", flush=True)
-        hello_imgui.get_runner_params().app_shall_exit = True
+        app.close_requested = True
 
     previous = {sig: signal.signal(sig, close) for sig in (signal.SIGTERM, signal.SIGINT)}
+    if stop.requested():  # recorded by the command's handler while the viewer was starting: nothing runs yet
+        for sig, handler in previous.items():
+            signal.signal(sig, handler)
+        signum = stop.signal_number() or signal.SIGINT
+        print(f"splatstyler: {signal.Signals(signum).name} received while the viewer was starting: nothing to save",
+              flush=True)
+        return signum
     try:
         immapp.run(app.runner_params(), immapp.AddOnsParams(with_implot=True))
     except KeyboardInterrupt:
