@@ -116,7 +116,8 @@ def commands(inputs: Inputs) -> dict[str, Command]:
             "demo",
             lambda o: splatstyler("demo", "--headless", "-o", str(o), "--recon-iters", "150", "--iters-per-view",
                                   "1", "--no-progress"),
-            lambda o: splatstyler("reconstruct", str(o / "assets" / "scene"), "-o", str(o / "reconstruction"),
+            # the scene the demo printed and reconstructed (the generated one, in the assets' cache)
+            lambda o: splatstyler("reconstruct", str(inputs.scene), "-o", str(o / "reconstruction"),
                                   "--resume", "--no-progress"),
             lambda o: (o / "reconstruction" / "checkpoint.pt").is_file()
             and not (o / "reconstruction" / "report.json").is_file()),

@@ -94,9 +94,17 @@ def run(args: argparse.Namespace) -> int:
     options = stylize_settings.stylize_options(parse_flags(stylize_settings.add_arguments, flags, "stylize flags"),
                                                recon / "point_cloud.ply")
     stylize_in_console(recon / "point_cloud.ply", data, style, styled, no_progress=args.no_progress, **options)
+    from training.core import stop
+
+    if stop.requested():  # the stylization's outputs are whole: the export and the sheet would only make it wait
+        raise stop.StopRequested(f"after the stylization: its outputs are complete in {styled}; no .splat export "
+                                 "or demo contact sheet")
     print(f"\n== splatstyler export {styled / 'point_cloud.ply'} -o {styled / 'scene.splat'}", flush=True)
     export_splat(styled / "point_cloud.ply", styled / "scene.splat")
     from app.demo_sheet import demo_contact_sheet
+
+    if stop.requested():
+        raise stop.StopRequested(f"after the export: {styled} is complete; no demo contact sheet")
 
     sheet = demo_contact_sheet(data, recon / "point_cloud.ply", out / "stylized" / "point_cloud.ply", style,
                                out / CONTACT_SHEET)
