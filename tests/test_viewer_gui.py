@@ -57,8 +57,11 @@ def test(ctx):
     ctx.item_click("Select in sphere")
     open_window(ctx, "Style")
     ctx.combo_click("stylize/only the selection")
-    ctx.yield_(2)
-    found["selected"] = int(app.document.editor.selected.sum())
+    # the trainer takes the region at its next step boundary, which on a slow machine is several frames away
+    selected = app.document.editor.selected
+    wait(ctx, lambda: trainer.mask is not None and np.array_equal(trainer.mask, selected), 60,
+         "the running stylizer to take the region")
+    found["selected"] = int(selected.sum())
     found["mask_is_selection"] = bool(np.array_equal(trainer.mask, app.document.editor.selected))
     open_window(ctx, "Training")
     ctx.item_click("Pause")
