@@ -360,3 +360,34 @@ def test_2d_baseline_changes_images_lowers_style_distance_and_breaks_consistency
     good = warp_consistency(images[0], depths[0], alphas[0], cams[0], images[1], depths[1], alphas[1], cams[1])
     bad = warp_consistency(out[0], depths[0], alphas[0], cams[0], out[1], depths[1], alphas[1], cams[1])
     assert bad["rmse"] > 1.5 * good["rmse"]
+
+
+def test_a_stop_is_honoured_inside_a_vgg_pass(taps):
+    """A measure's VGG pass over a painting at twice the render's size takes seconds on CPU (the stop-instants run
+    saw a demo stop 3 s after its signal, inside the report's measures): a stop recorded while a pass runs ends it
+    at the next layer, from Python code, and the taps work again once the stop is cleared."""
+    import signal
+
+    from training.core import stop
+
+    image = np.random.default_rng(0).random((256, 256, 3), dtype=np.float32)
+    seen = []
+
+    def record_then_request(*_):
+        seen.append(len(seen))
+        if len(seen) == 3:  # after the second layer started
+            stop.request(signal.SIGTERM)
+    original = torch.nn.functional.conv2d
+
+    def counting_conv(*args, **kwargs):
+        record_then_request()
+        return original(*args, **kwargs)
+    try:
+        torch.nn.functional.conv2d = counting_conv
+        with pytest.raises(stop.StopRequested):
+            taps(image)
+    finally:
+        torch.nn.functional.conv2d = original
+        stop.reset()
+    assert len(seen) == 3  # no conv after the one during which the stop came
+    assert taps(image)["relu4"].shape[1] == 512

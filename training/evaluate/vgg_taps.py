@@ -12,6 +12,8 @@ import numpy as np
 import torch
 import torch.nn.functional as F
 
+from training.core import stop
+
 IMAGENET_MEAN = (0.485, 0.456, 0.406)
 IMAGENET_STD = (0.229, 0.224, 0.225)
 # vgg16().features up to conv4_1: conv widths, "M" a 2x2 max-pool
@@ -62,6 +64,7 @@ class VGGTaps:
             out: dict[str, torch.Tensor] = {}
             conv = 0
             for v in _CFG:
+                stop.check()  # a pass over a painting at twice the render's size takes seconds on CPU
                 if v == "M":
                     x = F.max_pool2d(x, 2, 2)
                     continue
