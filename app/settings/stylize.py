@@ -70,8 +70,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         f"colour transfer; render, the input model's render of the view after it (what the model "
                         f"can show) ({recipe_default('content_source')})")
     p.add_argument("--style-scale", type=float, default=None,
-                   help=f"stroke size: the painting's long side as a multiple of the render's; at 1 and small "
-                        f"renders the painting's features are whole motifs ({recipe_default('style_scale')})")
+                   help=f"stroke size: the painting's long side as a multiple of the render's; larger gives larger "
+                        f"strokes and fewer of the painting's whole motifs ({recipe_default('style_scale')})")
     p.add_argument("--vgg-precision", choices=D.VGG_PRECISIONS, default=D.VGG_PRECISION,
                    help=f"VGG's arithmetic: float32, bfloat16, or auto (bfloat16 on a CPU that has it natively, "
                         f"AVX512-BF16 or AMX; float32 elsewhere and on CUDA) (default {D.VGG_PRECISION}; the "

@@ -65,8 +65,7 @@ def style_panel(doc, session, ui) -> None:
     if changed:
         set_stylize(session, ui, style_scale=scale)
     imgui.set_item_tooltip("the painting's size against the render's (style scale): larger gives larger strokes and "
-                           "fewer whole motifs of the painting; 1 is the paper's, where a small render takes the "
-                           "painting's moons and trees whole")
+                           "fewer whole motifs of the painting")
     # (label, config field, its current value): the spans come with the config (RANGES)
     floats = [("tau", "tau", cfg.tau), ("epsilon", "epsilon", cfg.epsilon), ("lambda_guide", "lambda_guide",
               cfg.lambda_guide), ("style weight", "lambda_style", cfg.style_weight),
@@ -104,12 +103,31 @@ def style_panel(doc, session, ui) -> None:
     if balance is not None:
         imgui.text(f"content/style gradient: {balance:.3g} "
                    f"({'the scene leads' if balance > 1 else 'the painting leads'})")
+    if run is not None and run.structure_drift is not None and run.content_weight is not None \
+            and run.config.structure_budget > 0:
+        imgui.text(f"structure drift {run.structure_drift:.3f} of {run.config.structure_budget:.3g}: "
+                   f"content weight {run.content_weight:.3g}")
+        imgui.set_item_tooltip("the structure budget steers the content weight: up while the drift is over the "
+                               "budget, down while it is under")
     ui.window.style_settings_h = imgui.get_cursor_pos_y() - below_painting  # the painting leaves them room
 
 
 def balance_slider(session, ui, cfg) -> None:
-    """Scene <-> painting: the content weight on a logarithmic scale, the scene at the left end (the largest weight),
-    the painting at the right; the value shown is the weight itself."""
+    """Scene <-> painting, the scene at the left end, the painting at the right. Under a structure budget (the
+    balanced recipe) it sets the budget: how far the renders' structure may drift from the scene's, the content weight
+    following by itself; without one (the paper's recipe) it sets the content weight, on a logarithmic scale."""
+    if cfg.structure_budget > 0:
+        lo, hi = D.STRUCTURE_BUDGET_SPAN
+        budget = min(max(float(cfg.structure_budget), lo), hi)
+        changed, toward_painting = imgui.slider_float("scene <-> painting", (budget - lo) / (hi - lo), 0.0, 1.0,
+                                                      f"structure drift {cfg.structure_budget:.3g}")
+        if changed:
+            set_stylize(session, ui, structure_budget=float(lo + (hi - lo) * toward_painting))
+        imgui.set_item_tooltip("how far the scene's structure may drift toward the painting's (the structure budget; "
+                               f"the default is {D.STRUCTURE_BUDGET:g}): left keeps the scene, right gives the "
+                               "painting more of it. The content weight follows by itself as the run goes; a "
+                               "line under the sliders says where it is")
+        return
     lo, hi, _ = RANGES["lambda_content"]  # the span where each end leads: content, style
     weight = min(max(float(cfg.lambda_content), lo), hi)
     toward_painting = math.log(hi / weight) / math.log(hi / lo)
