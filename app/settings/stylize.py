@@ -26,8 +26,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     p = parser
     p.add_argument("--recipe", choices=D.RECIPES, default=D.DEFAULT_RECIPE,
                    help="the settings to start from: balanced (default), this project's: the content weight steered "
-                        "to hold the scene's structure (--structure-budget), the painting at twice the render's "
-                        "size, the DC colour, a little total variation; paper: the paper's stated objective and "
+                        "to hold the scene's structure (--structure-budget), the painting's feature statistics "
+                        "(--lambda-moments), the DC colour, a decaying rate; paper: the paper's stated objective and "
                         "settings (CCFT plus the MSE content term at 0.005, K 16, every SH band, no total "
                         "variation), and where the paper is silent a reference's, named in each flag's help. Flags "
                         "given change the recipe's values; the report says where")

@@ -170,8 +170,8 @@ def recipe_config(recipe: str = D.DEFAULT_RECIPE, **changes) -> StylizeConfig:
 
 
 def recipe_settings(config: StylizeConfig) -> dict[str, dict]:
-    """Every setting the two recipes set differently: {name: {"value": config's, "recipe": its recipe's,
-    <other recipe>: that one's}}, for the report, the help and the Style tab."""
+    """Every setting the recipes set: {name: {"value": config's, <each recipe>: that recipe's}}, for the report, the
+    help and the Style tab."""
     out = {}
     for name in D.RECIPE_SETTINGS[config.recipe]:
         out[name] = {"value": getattr(config, name), **{r: D.RECIPE_SETTINGS[r][name] for r in D.RECIPES}}
