@@ -47,6 +47,13 @@ def test(ctx):
     found["tau_after"] = app.session.trainer_status().config.tau
     found["first_step_with_new_tau"] = min(h["step"] for h in list(app.session.history) if new_tau(h))
     found["changed_at"] = changed_at
+    # under the balanced recipe the scene <-> painting slider sets the structure budget: its right end, the most
+    # drift the slider offers, reaches the running stylizer
+    ctx.item_input_value("scene <-> painting", 1.0)
+    found["budget_in_panel"] = app.ui.training.stylize.structure_budget
+    wait(ctx, lambda: abs(app.session.trainer_status().config.structure_budget - 0.15) < 1e-6, 60,
+         "the stylizer to take the budget")
+    found["lambda_content_after_budget"] = app.session.trainer_status().config.lambda_content
     open_window(ctx, "View order")
     ctx.yield_(3)
     found["drawn_order"] = list(app.ui.window.drawn_order)
@@ -90,6 +97,7 @@ Path(os.environ["RESULT"]).write_text(json.dumps(found))
     assert found["tau_before"] == 0.5 and found["tau_in_panel"] == pytest.approx(0.05, abs=1e-6)
     assert found["tau_after"] == pytest.approx(0.05, abs=1e-6)
     assert found["first_step_with_new_tau"] > found["changed_at"]
+    assert found["budget_in_panel"] == pytest.approx(0.15) and found["lambda_content_after_budget"] == 8.0
     assert found["drawn_order"] == found["trainer_order"] and len(found["trainer_order"]) == 32
     assert len(found["capacity_shape"]) == 2 and min(found["capacity_shape"]) > 1
     assert 0 < found["selected"] < 4000 and found["mask_is_selection"]  # the running stylizer took the region
