@@ -64,7 +64,7 @@ class VGGTaps:
             out: dict[str, torch.Tensor] = {}
             conv = 0
             for v in _CFG:
-                stop.check()  # a pass over a painting at twice the render's size takes seconds on CPU
+                stop.check()  # a pass over a large painting takes seconds on CPU
                 if v == "M":
                     x = F.max_pool2d(x, 2, 2)
                     continue
