@@ -94,8 +94,13 @@ class Xvfb:
         for number in range(140, 200):
             if Path(f"/tmp/.X{number}-lock").exists() or Path(f"/tmp/.X11-unix/X{number}").exists():
                 continue
+            # -noreset: by default the server resets when its last client leaves, and a client connecting during
+            # the reset fails ("Failed to open display"): a viewer launched just after another one exited, as the
+            # stop tests do (xdotool connecting 600 times in a row, each the only client: 4-5 of 600 refused
+            # without it, 0 with it)
             proc = subprocess.Popen(["Xvfb", f":{number}", "-screen", "0", f"{self.size[0]}x{self.size[1]}x24",
-                                     "-nolisten", "tcp"], stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+                                     "-nolisten", "tcp", "-noreset"], stdout=subprocess.DEVNULL,
+                                    stderr=subprocess.DEVNULL)
             for _ in range(100):
                 if Path(f"/tmp/.X11-unix/X{number}").exists():
                     self.proc, self.display = proc, f":{number}"
