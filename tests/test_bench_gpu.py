@@ -27,7 +27,11 @@ def test_without_cuda_it_says_so_in_one_line_and_exits_2(tmp_path, capsys):
 
 @pytest.mark.slow
 def test_report_from_a_real_cpu_run_of_every_step(tmp_path):
-    """Every step through the code bench gpu runs, on the CPU at toy sizes (10 s on 2 quiet cores, 40 s under load)."""
+    """Every step through the code bench gpu runs, on the CPU at toy sizes (10 s on 2 quiet cores, 40 s under load).
+    Slow: all six steps for real: the parity step's pytest in a subprocess (its start and collection; the CUDA
+    cases skip), the CPU rasterizer's bench, the viewer benches (every accumulation format and display path on
+    llvmpipe), a 40-step reconstruction with its report and a stylization with VGG-16 loaded, one step a view over
+    8 views (58 s in a clean-clone CI run on 2 cores)."""
     from assets.demo.scene import make_demo_scene, write_demo_scene
 
     scene = tmp_path / "scene"

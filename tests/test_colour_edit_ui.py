@@ -142,6 +142,14 @@ Path(os.environ["RESULT"]).write_text(json.dumps(found))
 
 
 def test_selection_tools_pick_what_they_should(demo_scene, tmp_path):
+    """On the demo model in the viewer: a colour pick at the view's middle picks the colour of the splat drawn most
+    at that pixel and selects exactly the Gaussians within 0.12 of it; the surface brush takes some, not all, of the
+    centres the plain brush would, the nearer ones; Select by size takes exactly those in the typed range; Select by
+    opacity takes all of them in [0.8, 0.95] and none in [0, 0.5]; Grow adds each selected Gaussian's 6 nearest
+    neighbours, Shrink takes off the border, and undo gives the grown selection back.
+    Slow: a viewer process of its own (torch, imgui and an EGL context on llvmpipe: software GL) whose still
+    full-resolution view is drawn and read back, then the tools driven through the test engine frame by frame, each
+    frame drawn on the CPU (34 s in a clean-clone CI run on 2 cores)."""
     scene_dir, _, model = demo_scene
     found = run_gui(PRELUDE + STILL + f"""
 import pickle
@@ -351,7 +359,11 @@ def test_export_of_an_opened_stylized_model_is_what_export_project_bakes(stylize
 def test_style_strength_while_and_after_stylizing_exports_the_original_and_the_stylized(demo_scene, tmp_path):
     """A real stylization started from the Training panel and paused: style strength 0 (every Gaussian) shows the
     model as it was before, 1 the stylized one again; after Stop, the Edit panel's export at 0 is the input model's
-    SH bit for bit and at 1 the saved stylized model's."""
+    SH bit for bit and at 1 the saved stylized model's.
+    Slow: a viewer process of its own (torch, imgui and an EGL context on llvmpipe: software GL) in which a real
+    stylization of the demo model at 64 px loads (VGG-16, the views' content) and steps until paused, five still
+    full-resolution views drawn and read back, the save of the stopped run, the exports, and the run's model
+    opened again (62 s in a clean-clone CI run on 2 cores)."""
     scene_dir, style, model = demo_scene
     found = run_gui(PRELUDE + STILL + f"""
 from imgui_bundle import imgui

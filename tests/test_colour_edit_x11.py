@@ -23,6 +23,15 @@ SHOT_NAMES = ("colour_adjust", "colour_pick", "surface_brush", "size_range", "gr
 
 
 def test_x11_colour_and_selection_tools_on_screen(stylized_pair, demo_scene, x_server, tmp_path):  # noqa: F811
+    """On the X screen: brightness and hue on a selection change the view where the selection is drawn and nowhere
+    else, and undo gives the screen back; colour pick, surface brush, size range and grow each select some but not
+    all of the Gaussians; the original paired through the Colour panel at style strength 0 puts the original's
+    headless render on screen rather than the stylized one's, and the export at strength 0 holds the original's SH
+    bit for bit; every step's screen is kept as a PNG.
+    Slow: a viewer process of its own on X11 under Xvfb with software GL (llvmpipe): its start, then ten screens
+    recorded, each once the full-resolution view is drawn and still (at least 1.1 s of settling) and read from the X
+    server, with the tools' clicks, a brush stroke and three Grows between them; then three headless reference
+    renders (92 s in a clean-clone CI run on 2 cores)."""
     scene_dir, _, _ = demo_scene
     original, stylized = stylized_pair
     found = run_gui(PRELUDE + LOOK + f"""

@@ -17,6 +17,14 @@ from training.model.splat_io import read_splat
 
 @pytest.mark.slow
 def test_demo_runs_end_to_end(tmp_path):
+    """`splatstyler demo --headless` with 300 reconstruction steps and one stylization iteration a view exits 0: the
+    reconstruction's report has 300 iterations and a test PSNR above its initial one, the CCFT stylization keeps
+    the geometry on disk bit for bit and changes the colours, all 32 views are rendered, the .splat holds every
+    Gaussian, the contact sheet has content and the measures' line reaches the console.
+    Slow: the whole demo on the CPU in a subprocess: 300 reconstruction steps on the 32 generated 256x192 views
+    and its report (renders, test measures, contact sheet), 32 quick-preset stylization steps at 256x192 (VGG-16
+    forward and backward), the stylization report's measures and renders of every view, the .splat export and the
+    demo's contact sheet (158 s in a clean-clone CI run on 2 cores)."""
     out = tmp_path / "demo"
     proc = subprocess.run(
         [sys.executable, "-m", "app", "demo", "--headless", "-o", str(out), "--recon-iters", "300", "--iters-per-view", "1"],
@@ -60,7 +68,11 @@ def test_demo_in_a_window_writes_each_stage_as_it_ends_and_keeps_what_it_has_on_
     """`splatstyler demo` with a display (DISPLAY set, the window on GLFW's null platform): the reconstruction's
     report.json, renders and contact sheet are written as it ends, with the window open; SIGTERM during the
     stylization keeps the model so far and its checkpoint, and the demo's contact sheet is made of what there is
-    (exit 143). (The finished stylization's outputs: tests/test_viewer_gui.py.)"""
+    (exit 143). (The finished stylization's outputs: tests/test_viewer_gui.py.)
+    Slow: the demo's viewer process (imports, the window, EGL on llvmpipe): a 10-step reconstruction and its outputs
+    written with the window open (renders, test measures, contact sheet), the stylization's load (VGG-16, the
+    views' content) and 2 s of its steps, then the save on SIGTERM and the contact sheet of the model so far (34 s in
+    a clean-clone CI run on 2 cores)."""
     import os
     import signal
     import time

@@ -94,6 +94,15 @@ def test_undefined_names_are_refused(tmp_path, demo):
 
 @pytest.mark.slow
 def test_grid_runs_resumes_and_records_a_failed_cell(tmp_path, demo):
+    """The tiny grid with a cell whose tau is -1, on 2 workers: that cell fails with the stylize command's one-line
+    error and the grid exits 1, the ccft and nnfm cells finish with every metric in cells.csv, and RESULTS.md counts
+    2 of 3 cells finished, checks the paper's ccft > nnfm and names the failed cell, beside a plot and a contact
+    sheet. Run again after the nnfm cell's record is removed, only the two jobs not done run, the finished ccft
+    cell is left untouched, and the new record carries the package's version.
+    Slow: two `splatstyler eval` runs, each a process with spawned workers importing torch: a 100-step
+    reconstruction of the demo scene at 1/4 size, three quick stylizations at 64 px (ccft and nnfm, then nnfm
+    again) each measured for the report (training/evaluate/measure.py), and the report twice, its worst-pair sheet
+    rendered again from the saved models (85 s in a clean-clone CI run on 2 cores)."""
     grid = write_grid(tmp_path, demo, extra="[settings.broken]\ntau = -1\n")
     out = tmp_path / "out"
     proc = run_eval(str(grid), "-o", str(out), "--workers", "2", "--threads", "1")
@@ -131,6 +140,11 @@ def test_grid_runs_resumes_and_records_a_failed_cell(tmp_path, demo):
 
 @pytest.mark.slow
 def test_grid_runs_on_a_local_ray_instance(tmp_path, demo):
+    """`splatstyler eval --ray local` runs the tiny grid as tasks on a local Ray instance: exit 0, the console says
+    "on Ray (local)", both cells are recorded ok with a utilisation above 0, and RESULTS.md is written.
+    Slow: a local Ray instance started (its own processes, and workers that import torch), the grid's 100-step
+    reconstruction of the demo scene at 1/4 size and its two quick stylizations at 64 px, each measured for the
+    report, and the report (89 s in a clean-clone CI run on 2 cores)."""
     pytest.importorskip("ray")
     grid = write_grid(tmp_path, demo)
     out = tmp_path / "ray_out"
@@ -163,7 +177,10 @@ def test_a_record_made_with_other_settings_is_not_done(tmp_path, demo):
 @pytest.mark.slow
 def test_a_grid_killed_with_sigkill_resumes_losing_only_the_running_job(tmp_path, demo):
     """SIGKILL to the whole grid (parent and workers: no handler runs) once the reconstruction is recorded: the run
-    after it keeps that job, runs the rest, and finishes."""
+    after it keeps that job, runs the rest, and finishes.
+    Slow: two `splatstyler eval` runs on one worker: the first through the 100-step reconstruction of the demo scene
+    until its record appears, then killed; the second through both quick stylizations at 64 px, one after the
+    other, each measured for the report, and the report (80 s in a clean-clone CI run on 2 cores)."""
     import os
     import signal
     import time

@@ -72,7 +72,10 @@ def test_sigterm_at_random_instants_of_reconstruct_and_stylize(tmp_path):
     """SIGTERM at seeded random instants over a whole small run of each (tests/stop_instants.py; the seed is printed,
     SPLATSTYLER_TEST_SEED replays it): always exit 143 with the stop line (or 0 when the run had finished first),
     no traceback or stack dump, and where a step had run a checkpoint that --resume accepts and finishes from.
-    Slow: a calibration run of each command, the stopped runs and the resumed ones (about 3 minutes on 2 cores)."""
+    Slow: each run is a fresh `python -m app` process paying torch's import: the 150-step reconstruction at 64 px
+    that the stylize runs read, one calibration run of each command to its end (reconstruct: 120 steps at 64 px;
+    stylize: 40 steps at 48 px, then its report's measures), the six stopped runs and the --resume runs that finish
+    what they kept (212 s in a clean-clone CI run on 2 cores)."""
     from tests import stop_instants
 
     seed = random.randrange(2 ** 31)
@@ -86,7 +89,10 @@ def test_sigterm_at_random_instants_of_reconstruct_and_stylize(tmp_path):
 @pytest.mark.slow
 def test_sigterm_stops_the_headless_demo_with_its_reconstruction_checkpointed(tmp_path):
     """The demo in a container stopped by `docker stop`: the reconstruction under way keeps its checkpoint, one line
-    says so, exit 143, no stack dump."""
+    says so, exit 143, no stack dump.
+    Slow: `splatstyler demo --headless` in a subprocess, waited on through its start (imports, the scene's load,
+    the reconstruction's set-up) until its progress bar shows 20 of 3000 steps, then its checkpoint's save on
+    SIGTERM (34 s in a clean-clone CI run on 2 cores)."""
     from training.reconstruct.checkpoint import load_checkpoint
 
     out = tmp_path / "demo"

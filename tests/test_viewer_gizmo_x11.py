@@ -18,7 +18,11 @@ pytestmark = [pytest.mark.slow, pytest.mark.skipif(bool(xvfb_missing()), reason=
 def test_x11_two_models_on_screen_and_the_gizmo_on_selection_box_and_model(demo_scene, x_server, tmp_path):
     """Two models drawn as one: the view on the X screen is the merged export's render, with both models in it.
     Then the gizmo, held mid-drag, on the selection, on the crop box (which Crop then uses) and on the second
-    model; each drag is the pointer's and leaves the camera where it was. Screenshots: gizmo_*.png."""
+    model; each drag is the pointer's and leaves the camera where it was. Screenshots: gizmo_*.png.
+    Slow: a viewer process of its own on X11 under Xvfb with software GL (llvmpipe): its start, the second model
+    dropped in and the merged export, a still screen recorded, three drags each held a second mid-drag for a shot
+    of the X screen, undo and redo, a pick, then a headless reference render of the merged model (32 s in a
+    clean-clone CI run on 2 cores)."""
     _, _, model = demo_scene
     second = moved_copy(model, similarity(25.0, (0, 1, 0), 0.7, (15.0, 0.0, 1.0)), tmp_path / "second.ply")
     found = run_gui(PRELUDE + LOOK + f"""

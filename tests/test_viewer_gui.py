@@ -27,6 +27,15 @@ def null_platform(monkeypatch):
 
 
 def test_live_stylization_tau_slider_view_order_and_pause(demo_scene, tmp_path):
+    """A stylization running in the viewer takes the tau slider's new value from a step after the change and the
+    scene <-> painting slider's structure budget (the content weight staying 8.0); the View order panel draws the
+    trainer's order of the 32 views; "only the selection" hands the selection to the running stylizer as its
+    region; while paused no step runs, Step runs exactly one and stays paused; the screenshot has content and the
+    model is saved on close.
+    Slow: a viewer process of its own (torch, imgui and an EGL context on llvmpipe: software GL) in which a real
+    stylization of the demo model at 64 px loads (VGG-16, the views' content) and steps on the CPU, waited on for
+    each step that must take a change (tau, the budget, the region, the single step), then the save on close (51 s
+    in a clean-clone CI run on 2 cores)."""
     scene_dir, style, model = demo_scene
     found = run_gui(PRELUDE + f"""
 app = ViewerApp(Paths(model={str(model)!r}, data={str(scene_dir)!r}, style={str(style)!r}, out=str(OUT / "out")),
@@ -138,6 +147,12 @@ Path(os.environ["RESULT"]).write_text(json.dumps(found))
 
 
 def test_select_box_delete_undo_crop_and_export(demo_scene, tmp_path):
+    """A box typed into the Edit panel's fields holds the values typed; Select in box selects exactly the Gaussians
+    inside it, Delete removes them, Undo brings them and the selection back, Crop to box keeps only them, and Export
+    writes exactly those Gaussians in their order; the screenshot has content.
+    Slow: no training here: a viewer process of its own (torch, imgui and an EGL context on llvmpipe: software GL)
+    with the demo model, driven through eleven items of the Edit panel by the test engine, each taking frames
+    drawn on the CPU, then a screenshot and the export (41 s in a clean-clone CI run on 2 cores)."""
     scene_dir, _, model = demo_scene
     found = run_gui(PRELUDE + f"""
 import numpy as np
@@ -274,7 +289,12 @@ Path(os.environ["RESULT"]).write_text(json.dumps(found))
 def test_edits_sliders_masks_and_exports_never_race_the_running_trainer(demo_scene, tmp_path):
     """200 random actions from the UI thread while the stylizer steps: deletions of random spheres on the running
     model, tau and lambda sliders, the stylization's region, exports. Every change reaches the trainer between two
-    steps, so nothing raises, every export is a whole model, and the final model is the edits applied in order."""
+    steps, so nothing raises, every export is a whole model, and the final model is the edits applied in order.
+    Slow: a viewer process of its own (torch, imgui and an EGL context on llvmpipe: software GL) in which a real
+    stylization of the demo model at 48 px loads (VGG-16, the views' content) and steps on the CPU beside the
+    window's frames; the 200 actions take a frame each, and their deletions, regions and exports are carried out on
+    the training thread between its steps; then every export is read back and checked (112 s in a clean-clone CI
+    run on 2 cores)."""
     scene_dir, style, model = demo_scene
     found = run_gui(PRELUDE + f"""
 import random
@@ -494,7 +514,11 @@ def test_a_stylization_brings_its_tab_forward_says_its_pass_and_writes_the_demo_
     and the Training tab comes back when the run ends; while it runs both panels' line says "pass p of P, view v",
     v moving at every step (the interleaved schedule) with the View order panel's red mark; with the demo's window
     outputs (app/commands/demo.py) the finished run writes what the headless demo writes (report.json, renders,
-    .splat, contact sheet) while the window stays open, and says so in the Messages panel."""
+    .splat, contact sheet) while the window stays open, and says so in the Messages panel.
+    Slow: a viewer process of its own (torch, imgui and an EGL context on llvmpipe: software GL) in which a whole
+    stylization of the demo model at 48 px runs on the CPU, two passes over the 32 views, then writes the report's
+    measures, renders of every view, the before/after sheet, the .splat and the demo's contact sheet (37 s in a
+    clean-clone CI run on 2 cores)."""
     scene_dir, style, model = demo_scene
     found = run_gui(PRELUDE + f"""
 from app.commands.demo import WindowOutputs
