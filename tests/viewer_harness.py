@@ -7,6 +7,7 @@ from __future__ import annotations
 
 import json
 import os
+import select
 import subprocess
 import sys
 import textwrap
@@ -91,26 +92,26 @@ class Xvfb:
         self.display = ""
 
     def start(self) -> "Xvfb":
-        for number in range(140, 200):
-            if Path(f"/tmp/.X{number}-lock").exists() or Path(f"/tmp/.X11-unix/X{number}").exists():
-                continue
-            # -noreset: by default the server resets when its last client leaves, and a client connecting during
-            # the reset fails ("Failed to open display"): a viewer launched just after another one exited, as the
-            # stop tests do (xdotool connecting 600 times in a row, each the only client: 4-5 of 600 refused
-            # without it, 0 with it)
-            proc = subprocess.Popen(["Xvfb", f":{number}", "-screen", "0", f"{self.size[0]}x{self.size[1]}x24",
-                                     "-nolisten", "tcp", "-noreset"], stdout=subprocess.DEVNULL,
-                                    stderr=subprocess.DEVNULL)
-            for _ in range(100):
-                if Path(f"/tmp/.X11-unix/X{number}").exists():
-                    self.proc, self.display = proc, f":{number}"
-                    time.sleep(0.2)
-                    return self
-                if proc.poll() is not None:
-                    break
-                time.sleep(0.05)
+        # -displayfd: the server takes the first free display number itself and writes it to the pipe once it
+        # listens, so two test processes starting servers at once (pytest-xdist) cannot both pick one number.
+        # -noreset: by default the server resets when its last client leaves, and a client connecting during the
+        # reset fails ("Failed to open display"): a viewer launched just after another one exited, as the stop
+        # tests do (xdotool connecting 600 times in a row, each the only client: 4-5 of 600 refused without it, 0
+        # with it)
+        read, write = os.pipe()
+        proc = subprocess.Popen(["Xvfb", "-displayfd", str(write), "-screen", "0",
+                                 f"{self.size[0]}x{self.size[1]}x24", "-nolisten", "tcp", "-noreset"],
+                                pass_fds=(write,), stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+        os.close(write)
+        with os.fdopen(read) as pipe:
+            ready = select.select([pipe], [], [], 60)[0]
+            number = pipe.readline().strip() if ready else ""  # "" also when the server exited
+        if not number.isdigit():
             proc.kill()
-        raise RuntimeError("Xvfb did not start on any display from :140 to :199")
+            proc.wait()
+            raise RuntimeError("Xvfb did not start (no display number within 60 s)")
+        self.proc, self.display = proc, f":{number}"
+        return self
 
     def stop(self) -> None:
         if self.proc is not None:
