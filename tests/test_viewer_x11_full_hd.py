@@ -193,8 +193,8 @@ def column_starts(text: np.ndarray, gap: int = 3) -> list[list[int]]:
 @requires_program("xdotool", "xdotool")
 def test_x11_full_hd_keys_overlay_lines_up_and_ctrl_q_closes_as_the_close_button(demo_scene, x_server, tmp_path):
     """Keys typed through the X server (xdotool), into the application's own loop: H shows the keys, whose
-    descriptions start at one x on every line; Ctrl+Q closes the window during a reconstruction, which saves its
-    checkpoint as on the close button."""
+    descriptions start at one x on every line; Ctrl+Q, even with Ctrl let go before Q within one frame, closes the
+    window during a reconstruction, which saves its checkpoint as on the close button."""
     scene_dir, _, _ = demo_scene
     env = dict(os.environ, OUT=str(tmp_path), XDG_CONFIG_HOME=str(tmp_path / "config"), **x11_env(x_server))
     state_file = tmp_path / "state.json"
@@ -237,7 +237,12 @@ def test_x11_full_hd_keys_overlay_lines_up_and_ctrl_q_closes_as_the_close_button
         xdotool("key", "h")
         until(lambda: state()["help"] is None, 30, "the overlay to close")
         step = state()["step"]
-        xdotool("key", "ctrl+q")
+        # Ctrl+Q as quick hands (and `xdotool key ctrl+q`) type it, Ctrl let go before Q, with Ctrl's press in one
+        # frame and Q's press and Ctrl's release in the next: imgui's state in that frame is a plain Q
+        # (app/viewer/key_presses.py); under load this is what made `key ctrl+q` fail now and then
+        xdotool("keydown", "ctrl")
+        until(lambda: state()["ctrl"], 30, "the window to see Ctrl held")
+        xdotool("keydown", "--delay", "0", "q", "keyup", "--delay", "0", "ctrl", "keyup", "q")
         try:
             code = proc.wait(120)
         except subprocess.TimeoutExpired:  # where every thread waits, from faulthandler, in the failure

@@ -25,6 +25,7 @@ from app.viewer.display.view3d import View3D
 from app.viewer.edit.colour_view import displayed
 from app.viewer.edit.document import Document
 from app.viewer.edit.world_edit import follow_world, scene_up
+from app.viewer.key_presses import KeyPresses
 from app.viewer.layout import (configure, floating_windows, help_overlay, quit_app, style_back, style_forward,
                                watch_style_tab, window_title)
 from app.viewer.live import photos, runs
@@ -43,6 +44,10 @@ MAX_FPS_TRAINING = 12.0  # while the user acts beside a running trainer (each fr
 ACTIVE_AFTER_INPUT_S = 0.5
 FRUSTUM_SIZE = 0.05  # the dataset cameras' frustums in the view, as a fraction of the cameras' span
 PATH_LINE_POINTS = 512  # the camera path drawn in the view: this many points at most, however long the video
+
+
+# the letters a shortcut or a plain key uses (gizmo_keys: g, t, y); the modifiers at their press are looked up
+SHORTCUT_LETTERS = "qszyhrngt"
 
 
 class ViewerApp:
@@ -73,6 +78,7 @@ class ViewerApp:
         self._start = start
         self._platform = "null"
         self._dropped: list[str] = []
+        self.key_presses = KeyPresses()  # the modifiers at each letter's press, from the window (key_presses.py)
         self._last_snapshot_at = 0.0
         self._last_frame_time = time.perf_counter()
         self._active_at = 0.0
@@ -387,6 +393,7 @@ class ViewerApp:
             from imgui_bundle import glfw_utils
 
             glfw.set_drop_callback(glfw_utils.glfw_window_hello_imgui(), self.on_drop)
+            self.key_presses.install(glfw_utils.glfw_window_hello_imgui())
         doc, session, ui = self.document, self.session, self.ui
         from imgui_bundle import imgui
 
@@ -513,35 +520,44 @@ class ViewerApp:
             self.note_input()
 
     def shortcuts(self) -> None:
-        """Keys act on the key's press event, with the modifiers held at that event (imgui's key chords, from its
-        ordered input queue), so a quick Ctrl+Z undoes once and a held one does not repeat; plain keys never fire
-        while text is typed."""
+        """Keys act on the key's press event, with the modifiers held at that event (for letters, as the window
+        system gave them with the press: key_presses.py says why imgui's state in the frame is not enough), so a
+        quick Ctrl+Z undoes once and a held one does not repeat; plain keys never fire while text is typed, or when
+        their press came with Ctrl or Super."""
         from imgui_bundle import imgui
 
         doc, ui = self.document, self.ui
         io = imgui.get_io()
-        k, ctrl, shift = imgui.Key, imgui.Key.mod_ctrl.value, imgui.Key.mod_shift.value
-        chord = imgui.is_key_chord_pressed
-        if chord(ctrl | k.q.value):
+        k = imgui.Key
+        ctrl, shift, alt, super_ = k.mod_ctrl.value, k.mod_shift.value, k.mod_alt.value, k.mod_super.value
+        held = int(io.key_mods) & (ctrl | shift | alt | super_)
+        pressed = {letter: self.key_presses.take(letter, held) for letter in SHORTCUT_LETTERS
+                   if imgui.is_key_pressed(getattr(k, letter), False)}
+
+        def chord(mods: int, letter: str) -> bool:
+            return pressed.get(letter) == mods
+
+        if chord(ctrl, "q"):
             quit_app(doc, self.session, ui)  # as the close button: before_exit stops the trainer, which saves
         if doc.editor is not None and not io.want_text_input:
-            if chord(ctrl | k.s.value):
+            if chord(ctrl, "s"):
                 ui.messages.guarded("save project", self.save_project)
-            elif chord(ctrl | shift | k.s.value):
+            elif chord(ctrl | shift, "s"):
                 ui.messages.guarded("save project as", dialogs.save_project_as, doc, self.session, ui)
-            elif chord(ctrl | k.z.value):
+            elif chord(ctrl, "z"):
                 doc.undo()
-            elif chord(ctrl | k.y.value) or chord(ctrl | shift | k.z.value):
+            elif chord(ctrl, "y") or chord(ctrl | shift, "z"):
                 doc.redo()
         if imgui.is_key_pressed(k.f1, False):
             ui.window.show_help = not ui.window.show_help
-        if io.want_text_input or io.key_ctrl or io.key_super:  # Ctrl and Super make shortcuts, not camera moves
+        # Ctrl and Super make shortcuts, not camera moves
+        if io.want_text_input or io.key_ctrl or io.key_super or any(m & (ctrl | super_) for m in pressed.values()):
             return
-        if imgui.is_key_pressed(k.h, False):
+        if "h" in pressed:
             ui.window.show_help = not ui.window.show_help
-        if imgui.is_key_pressed(k.r, False):
+        if "r" in pressed:
             ui.requests.reset = True
-        if imgui.is_key_pressed(k.n, False):
+        if "n" in pressed:
             ui.requests.nearest = True
         if imgui.is_key_pressed(k.space, False) and self.session.running and self.session.status().stage != "sfm":
             (self.session.resume if self.session.status().state == "paused" else self.session.pause)()
