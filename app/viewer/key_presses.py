@@ -41,9 +41,14 @@ class KeyPresses:
                 if self._previous:
                     self._previous(win, key, scancode, action, mods)
 
-        self._callback = glfw._GLFWkeyfun(on_key)
-        # pyGLFW's set_key_callback drops the callback it replaces; the C call returns it, so imgui's keeps working
-        self._previous = glfw._glfw.glfwSetKeyCallback(window, self._callback)
+        # pyGLFW's set_key_callback drops the callback it replaces; the C call returns it, so imgui's keeps working.
+        # Both names are pyGLFW's own (since its 1.x); without them, imgui's modifiers alone, as before.
+        setter = getattr(getattr(glfw, "_glfw", None), "glfwSetKeyCallback", None)
+        make = getattr(glfw, "_GLFWkeyfun", None)
+        if setter is None or make is None:
+            return
+        self._callback = make(on_key)
+        self._previous = setter(window, self._callback)
 
     def record(self, letter: str, mods: int) -> None:
         """A press of ``letter`` with imgui modifier flags ``mods``, as the window system reported it."""
