@@ -10,8 +10,8 @@ every key event the modifiers held at it; this keeps them for each letter until 
 
 from __future__ import annotations
 
-# GLFW's modifier bits (glfw3.h) and imgui's ImGuiMod_ values
-_GLFW_TO_IMGUI = ((0x0001, 1 << 13), (0x0002, 1 << 12), (0x0004, 1 << 14), (0x0008, 1 << 15))  # shift, ctrl, alt, super
+# GLFW's modifier bits (glfw3.h) and imgui's ImGuiMod_ values: shift, ctrl, alt, super
+_GLFW_TO_IMGUI = ((0x0001, 1 << 13), (0x0002, 1 << 12), (0x0004, 1 << 14), (0x0008, 1 << 15))
 
 
 def imgui_mods(glfw_mods: int) -> int:
