@@ -6,6 +6,7 @@ tests that need them skip only where node and npm are missing."""
 
 from __future__ import annotations
 
+import fcntl
 import json
 import shutil
 import subprocess
@@ -27,10 +28,14 @@ def _node() -> str:
     if missing:
         pytest.skip(f"{missing}: the readers we did not write come from npm (tests/js/package.json)")
     node = shutil.which("node")
-    if not SPLAT_TRANSFORM.exists() or not VALIDATOR.exists() or not SPZ_LIBRARY.exists():
-        proc = subprocess.run(["npm", "ci", "--no-audit", "--no-fund", "--ignore-scripts"], cwd=JS,
-                              capture_output=True, text=True, timeout=900)
-        assert proc.returncode == 0, f"npm ci in {JS} failed:\n{proc.stderr[-2000:]}"
+    # `npm ci` first deletes node_modules: two test processes (pytest-xdist) installing at once would each remove
+    # what the other is using, so the check and the install happen under one lock.
+    with open(JS / ".npm-ci.lock", "w") as lock:
+        fcntl.flock(lock, fcntl.LOCK_EX)
+        if not SPLAT_TRANSFORM.exists() or not VALIDATOR.exists() or not SPZ_LIBRARY.exists():
+            proc = subprocess.run(["npm", "ci", "--no-audit", "--no-fund", "--ignore-scripts"], cwd=JS,
+                                  capture_output=True, text=True, timeout=900)
+            assert proc.returncode == 0, f"npm ci in {JS} failed:\n{proc.stderr[-2000:]}"
     return node
 
 
