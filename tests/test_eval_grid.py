@@ -11,7 +11,7 @@ from pathlib import Path
 
 import pytest
 
-from app.evaluate.grid import load_grid
+from app.evaluate.grid import job_dir, load_grid
 from training.core.errors import InputError
 
 TINY = """
@@ -52,6 +52,30 @@ def write_grid(folder: Path, demo, extra: str = "") -> Path:
     path = folder / "grid.toml"
     path.write_text(TINY.format(scene=demo.scene_dir, style=demo.style_image, extra=extra))
     return path
+
+
+def stop_cell_after_its_first_step(folder: Path) -> int:
+    """Leave ``folder`` as a grid stopped in that cell leaves it: its stylization run again from the cell's own
+    settings (job.json) and stopped (as SIGTERM does) after the first step, so only its checkpoint is there."""
+    from app.settings import parse_flags
+    from app.settings import stylize as settings
+    from training.core import stop
+    from training.core.messages import Stepped
+    from training.stylize.checkpoint import CHECKPOINT_NAME
+    from training.stylize.pipeline import stylize_to_folder
+
+    spec = json.loads((folder / "job.json").read_text())["spec"]
+    model = job_dir(folder.parents[4], spec["recon_job"]) / "point_cloud.ply"
+    (folder / "report.json").unlink()
+    options = settings.stylize_options(parse_flags(settings.add_arguments, spec["flags"], "stylize flags"), model)
+    try:
+        with pytest.raises(stop.StopRequested, match=r"at iteration \d+;") as stopped:
+            stylize_to_folder(model, Path(spec["data"]), Path(spec["painting_path"]), folder, overwrite=True,
+                              listener=lambda event: isinstance(event, Stepped) and stop.request(), **options)
+    finally:
+        stop.reset()
+    assert (folder / CHECKPOINT_NAME).is_file()
+    return int(str(stopped.value).split("at iteration ")[1].split(";")[0])
 
 
 def run_eval(*argv: str) -> subprocess.CompletedProcess:
@@ -97,8 +121,9 @@ def test_grid_runs_resumes_and_records_a_failed_cell(tmp_path, demo):
     """The tiny grid with a cell whose tau is -1, on 2 workers: that cell fails with the stylize command's one-line
     error and the grid exits 1, the ccft and nnfm cells finish with every metric in cells.csv, and RESULTS.md counts
     2 of 3 cells finished, checks the paper's ccft > nnfm and names the failed cell, beside a plot and a contact
-    sheet. Run again after the nnfm cell's record is removed, only the two jobs not done run, the finished ccft
-    cell is left untouched, and the new record carries the package's version.
+    sheet. Run again after the nnfm cell's record is removed and its stylization stopped after its first step, only
+    the two jobs not done run, the finished ccft cell is left untouched, the nnfm cell continues from its checkpoint,
+    and the new record carries the package's version.
     Slow: two `splatstyler eval` runs, each a process with spawned workers importing torch: a 100-step
     reconstruction of the demo scene at 1/4 size, three quick stylizations at 64 px (ccft and nnfm, then nnfm
     again) each measured for the report (training/evaluate/measure.py), and the report twice, its worst-pair sheet
@@ -124,15 +149,19 @@ def test_grid_runs_resumes_and_records_a_failed_cell(tmp_path, demo):
     assert (out / "report" / "results" / "sheets" / "loss_demo.jpg").is_file()
     assert "cell/demo/broken/strokes/seed0" in md
 
-    # a second run resumes: the finished cells are kept untouched, only the failed one runs again
+    # a second run resumes: the finished cells are kept untouched, only the failed one runs again, and the nnfm
+    # cell, stopped after its first step, continues from its checkpoint
     ok_report = out / "cell" / "demo" / "ccft" / "strokes" / "seed0" / "report.json"
     before = ok_report.stat().st_mtime_ns
-    (out / "jobs" / "cell" / "demo" / "nnfm" / "strokes" / "seed0.json").unlink()  # as if killed mid-cell
+    (out / "jobs" / "cell" / "demo" / "nnfm" / "strokes" / "seed0.json").unlink()
+    kept_at = stop_cell_after_its_first_step(out / "cell" / "demo" / "nnfm" / "strokes" / "seed0")
     proc = run_eval(str(grid), "-o", str(out), "--workers", "1", "--resume")  # --resume: the same, said
     assert "2 jobs to run (2 already done)" in proc.stdout, proc.stdout
     assert ok_report.stat().st_mtime_ns == before
     nnfm = json.loads((out / "jobs" / "cell" / "demo" / "nnfm" / "strokes" / "seed0.json").read_text())
     assert nnfm["status"] == "ok"
+    resumed = json.loads((out / "cell" / "demo" / "nnfm" / "strokes" / "seed0" / "report.json").read_text())
+    assert 1 <= kept_at == resumed["resumed_at_iteration"] < resumed["iterations"]
     from importlib.metadata import version
 
     assert nnfm["splatstyler_version"] == version("splatstyler")

@@ -5,8 +5,8 @@ result travels back to the driver, which records it). Each job runs the library 
 flags are for (the flags read back by app/settings), in process, with its console output captured in
 OUT/logs/<job id>.log. A job whose outputs are already complete
 and were made from the same inputs (the fingerprint in them: training/scene/fingerprint.py) returns at once (a
-resumed grid); outputs made from other inputs are made again; an interrupted reconstruction continues from its
-checkpoint when that was made from the same data.
+resumed grid); outputs made from other inputs are made again; an interrupted reconstruction or stylization
+continues from its checkpoint when that was made from the same inputs.
 """
 
 from __future__ import annotations
@@ -211,13 +211,19 @@ def _cell(job: Job, out: Path) -> dict[str, Any]:
                               spec["flags"])
         else:
             from app.settings import stylize as settings
+            from training.stylize.checkpoint import CHECKPOINT_NAME
             from training.stylize.pipeline import stylize_to_folder
 
             model, data = recon / "point_cloud.ply", data_path(out, spec)
             options = settings.stylize_options(parse_flags(settings.add_arguments, spec["flags"], "stylize flags"),
                                                model)
-            _command(["stylize", model, "--data", data, "--style", spec["painting_path"], "-o", folder, *spec["flags"]])
-            stylize_to_folder(model, data, Path(spec["painting_path"]), folder, log=_say, **options)
+            # a grid stopped in this cell continues it when the checkpoint was made from the same inputs and
+            # settings, and starts it afresh otherwise (--force)
+            resume = (folder / CHECKPOINT_NAME).is_file()
+            _command(["stylize", model, "--data", data, "--style", spec["painting_path"], "-o", folder, *spec["flags"]]
+                     + (["--resume", "--force"] if resume else []))
+            stylize_to_folder(model, data, Path(spec["painting_path"]), folder, log=_say, resume=resume, force=resume,
+                              **options)
         with atomic_open(spec_path, "w") as f:
             json.dump({"spec": spec, "inputs": made}, f, indent=2)
     report = json.loads(report_path.read_text())
