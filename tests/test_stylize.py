@@ -388,3 +388,57 @@ def test_each_step_measures_its_plans_agreement_with_the_previous_view(tiny, vgg
              schedule="block")
     results = [b.step() for _ in range(12)]
     assert {i for i, r in enumerate(results) if r["match_agreement"] is not None} == {3, 6, 9}
+
+
+def test_the_output_measure_maps_the_render_as_the_final_colour_transfer_would_and_compares_the_input_colours(
+        tiny, vgg):
+    """structure_measure "output": the budget's colour statistics fit the map the final colour transfer fits from
+    the same renders; without a colour transfer, the unstylized model's render against the input model in its own
+    colours drifts by nothing; with one, by what the mapped render's features say; "render" is the step's drift."""
+    from training.stylize.color_transfer import (ColorTransform, apply_to_gaussians, apply_to_render, colour_stats,
+                                                 fit_color_transfer, foreground_pixels)
+    from training.stylize.structure_budget import OutputColours, StructureBudget, structure_drift
+
+    st = make(tiny, vgg, structure_measure="output", color_transfer=False)
+    camera = st.views.current.camera
+    image, alpha = (t.detach() for t in st.render(camera))
+    image = image[..., :3]
+    assert st.measured_drift(image, alpha, st.features(image), st.content_features()) == pytest.approx(0, abs=1e-6)
+
+    # one view's statistics give the map post_color_transfer fits from that render alone
+    painting = colour_stats(st.style_image.reshape(-1, 3))
+    colours = OutputColours()
+    colours.update(image, alpha)
+    expected = fit_color_transfer(foreground_pixels(image.numpy(), alpha.numpy()), st.style_image.reshape(-1, 3))
+    got = colours.transfer(painting)
+    assert np.allclose(got.A, expected.A, atol=1e-9) and np.allclose(got.b, expected.b, atol=1e-9)
+    # the mapped render is the render of the mapped model (over black), for a map that keeps every Gaussian's
+    # colour within [0, 1] (the rasterizer clamps a colour below 0, a map of the render cannot)
+    mild = ColorTransform(A=0.6 * np.eye(3) + 0.05, b=np.array([0.1, 0.05, 0.12]))
+    st_mapped = make(tiny, vgg, color_transfer=False)
+    st_mapped.gaussians = apply_to_gaussians(st.gaussians, mild)
+    direct = st_mapped.render(camera)[0].detach()[..., :3].clamp(0, 1)
+    assert torch.allclose(apply_to_render(image, alpha, mild), direct, atol=1e-5)
+
+    with_ct = make(tiny, vgg, structure_measure="output")
+    image, alpha = (t.detach() for t in with_ct.render(camera))
+    image = image[..., :3]
+    drift = with_ct.measured_drift(image, alpha, with_ct.features(image), with_ct.content_features())
+    transform = with_ct.budget.colours.transfer(painting)
+    original = with_ct.render(camera, sh=with_ct.original_sh, input_geometry=True)[0][..., :3].clamp(0, 1)
+    assert drift == pytest.approx(structure_drift(with_ct.features(apply_to_render(image, alpha, transform)),
+                                                  with_ct.features(original)), rel=1e-5)
+    assert drift > 0.001  # the pre colour transfer's colours are not the input's
+    resumed = StructureBudget.from_state(with_ct.budget.state())
+    assert np.array_equal(resumed.colours.mean, with_ct.budget.colours.mean)
+    assert np.array_equal(resumed.colours.second, with_ct.budget.colours.second)
+
+    plain = make(tiny, vgg)  # "render": the default
+    feats, content = plain.features(image), plain.content_features()
+    assert plain.config.structure_measure == "render"
+    assert plain.measured_drift(image, alpha, feats, content) == structure_drift(feats, content)
+
+
+def test_a_structure_measure_that_is_not_one_of_the_two_is_refused():
+    with pytest.raises(ValueError, match="structure_measure must be one of render, output"):
+        StylizeConfig(structure_measure="report").validate()

@@ -57,6 +57,11 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         f"render's features from its content's): the content weight is steered while the run goes "
                         f"to hold it, so every painting gets the room the scene allows; 0: a constant weight "
                         f"({recipe_default('structure_budget')})")
+    p.add_argument("--structure-measure", choices=D.STRUCTURE_MEASURES, default=D.STRUCTURE_MEASURE,
+                   help="what the structure budget's drift compares: render, the render being stylized against its "
+                        "content; output, the render as the final colour transfer will map it against the input "
+                        "model in its own colours, which is what the report's structure distance compares "
+                        f"(default: {D.STRUCTURE_MEASURE})")
     p.add_argument("--lambda-moments", type=float, default=None,
                    help=f"weight of the painting's feature statistics (each channel's mean and spread of the "
                         f"render's relu3 features against the painting's, relative): CCFT says which painting "
@@ -142,7 +147,7 @@ def config_from_args(args: argparse.Namespace):
     given = {name: getattr(args, name) for name in D.RECIPE_SETTINGS[args.recipe] if getattr(args, name) is not None}
     config = recipe_config(
         args.recipe, loss=args.loss, tau=args.tau, epsilon=args.epsilon, lambda_guide=args.lambda_guide,
-        sinkhorn_iters=args.sinkhorn_iters, lambda_style=args.lambda_style, vgg_precision=args.vgg_precision,
+        sinkhorn_iters=args.sinkhorn_iters, structure_measure=args.structure_measure, lambda_style=args.lambda_style, vgg_precision=args.vgg_precision,
         iters_per_view=args.iters_per_view, min_total_iters=args.min_total_iters,
         scene_kind=args.scene_kind, view_order=args.view_order, schedule=args.schedule, seed=args.seed,
         virtual_views=args.virtual_views, params=args.params,

@@ -67,11 +67,22 @@ def fit_color_transfer(content_pixels: np.ndarray | Iterable[np.ndarray], style_
     """The map that gives ``content_pixels`` (P, 3) — or a list of images, pooled — the style's colour statistics."""
     if not isinstance(content_pixels, np.ndarray):
         content_pixels = np.concatenate([np.asarray(p, dtype=np.float64).reshape(-1, 3) for p in content_pixels])
-    mu_c, cov_c = colour_stats(content_pixels)
-    mu_s, cov_s = colour_stats(style_pixels)
+    return transfer_between(colour_stats(content_pixels), colour_stats(style_pixels))
+
+
+def transfer_between(content: tuple[np.ndarray, np.ndarray], style: tuple[np.ndarray, np.ndarray]) -> ColorTransform:
+    """The map that gives colours of the statistics ``content`` (mean, covariance) those of ``style``."""
+    (mu_c, cov_c), (mu_s, cov_s) = content, style
     A = _sym_power(cov_s, 0.5, floor=False) @ _sym_power(cov_c, -0.5, floor=True)
-    b = mu_s - A @ mu_c
-    return ColorTransform(A=A, b=b)
+    return ColorTransform(A=A, b=mu_s - A @ mu_c)
+
+
+def apply_to_render(image: torch.Tensor, alpha: torch.Tensor, transform: ColorTransform) -> torch.Tensor:
+    """(H, W, 3) render over black and its (H, W, 1) alpha -> the render of the model ``apply_to_gaussians`` maps,
+    A image + alpha b, clipped to [0, 1] as the measures clip renders."""
+    A = torch.as_tensor(transform.A.T, dtype=image.dtype, device=image.device)
+    b = torch.as_tensor(transform.b, dtype=image.dtype, device=image.device)
+    return (image @ A + alpha * b).clamp(0, 1)
 
 
 def apply_to_colors(colors: np.ndarray, transform: ColorTransform, clip: bool = False) -> np.ndarray:

@@ -61,6 +61,7 @@ class StylizeConfig:
     lambda_style: float | None = None  # None: DEFAULT_LAMBDA_STYLE[loss] (30 for CCFT)
     lambda_content: float = D.LAMBDA_CONTENT  # the content weight (where the structure budget starts it)
     structure_budget: float = D.STRUCTURE_BUDGET  # the structure drift the content weight holds; 0: a constant weight
+    structure_measure: str = D.STRUCTURE_MEASURE  # render | output: what that drift compares (structure_budget.py)
     lambda_moments: float = D.LAMBDA_MOMENTS  # the painting's per-channel feature statistics (objective.moment_loss)
     content_norm: str = "relative"  # relative: ||X - X^||^2 / ||X^||^2 | mse: ARF's mean (objective.py)
     content_source: str = D.CONTENT_SOURCE  # photo: the photos (ARF) | render: the input model's renders
@@ -121,6 +122,9 @@ class StylizeConfig:
                              f"{self.content_source!r}")
         if self.vgg_precision not in VGG_PRECISIONS:
             raise ValueError(f"vgg_precision must be one of {', '.join(VGG_PRECISIONS)}, got {self.vgg_precision!r}")
+        if self.structure_measure not in D.STRUCTURE_MEASURES:
+            raise ValueError(f"structure_measure must be one of {', '.join(D.STRUCTURE_MEASURES)}, got "
+                             f"{self.structure_measure!r}")
         if self.content_norm not in CONTENT_NORMS:
             raise ValueError(f"content_norm must be one of {', '.join(CONTENT_NORMS)}, got {self.content_norm!r}")
         if self.params not in PARAMS:  # worded "<field> ..." so the CLI can name the flag

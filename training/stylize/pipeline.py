@@ -303,7 +303,8 @@ def structure_budget_summary(stylizer: Stylizer) -> dict[str, Any] | None:
     if not rows:
         return None
     weights = [h["content_weight"] for h in rows]
-    return {"budget": stylizer.config.structure_budget, "drift_end": stylizer.budget.drift,
+    return {"budget": stylizer.config.structure_budget, "measure": stylizer.config.structure_measure,
+            "drift_end": stylizer.budget.drift,
             "content_weight_end": weights[-1], "content_weight_min": min(weights),
             "content_weight_max": max(weights)}
 

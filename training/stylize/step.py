@@ -17,7 +17,6 @@ import torch
 from training.stylize.objective import render_gradients
 from training.stylize.optimizer import colour_learning_rate
 from training.stylize.plan_readouts import capacity_map
-from training.stylize.structure_budget import structure_drift
 from training.stylize.terms import TERMS, StepInputs
 
 if TYPE_CHECKING:
@@ -90,7 +89,7 @@ def gradient_step(st: Stylizer, timer: StepTimer) -> tuple[dict[str, Any], np.nd
             timer.timings[key[:-2]] = float(value)
 
     timer.start()
-    drift = structure_drift(feats, content)
+    drift = st.measured_drift(image.detach(), alpha.detach(), feats, content)
     st.budget.update(drift, cfg.structure_budget)
     timer.stop("structure", sync=False)
     timer.start()

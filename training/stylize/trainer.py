@@ -31,7 +31,7 @@ from training.core.messages import Finished, Stepped, StructureChanged, ViewMove
 from training.model.gaussians import Gaussians
 from training.raster.rasterize import resolve_device
 from training.scene.scene import Camera, Scene, over_background
-from training.stylize.color_transfer import ColorTransform
+from training.stylize.color_transfer import ColorTransform, apply_to_render, colour_stats
 from training.stylize.config import (DEFAULT_LAMBDA_STYLE, DEFAULT_LR, FIXED_AT_START,  # noqa: F401  (re-exported)
                                      StylizeConfig, iteration_schedule, paper_schedule, render_camera)
 from training.stylize.feature_cache import FeatureCache, vgg_in_bfloat16
@@ -43,7 +43,7 @@ from training.stylize.region import (as_mask, coverage_from_render, indicator_sh
 from training.stylize.scene_match import check_model_matches_scene, check_renders_not_empty
 from training.stylize.style_image import check_style_array
 from training.stylize.status import UTILISATION, stylize_status
-from training.stylize.structure_budget import StructureBudget
+from training.stylize.structure_budget import RELU3_1, StructureBudget, structure_drift
 from training.stylize.terms import LOSS_KEYS
 from training.stylize.step import StageTimes, StepTimer, gradient_step
 from training.stylize.stylized_model import StylizedModel
@@ -123,6 +123,8 @@ class Stylizer(LiveTrainer):
         self.optimizer_dc_only: bool | None = None  # the dc_only the optimiser was made for
         self.agreement = StepAgreement()
         self.budget = StructureBudget()  # the content weight's multiplier (structure_budget.py)
+        self._painting_colours = None  # the painting's colour mean and covariance, for the "output" measure
+        self._original_features: dict[int, torch.Tensor] = {}  # relu3_1 of the input model's renders, by position
         self.last_stats: dict[str, Any] = {}
         self.history: list[dict[str, float]] = []
         self.finished = False
@@ -178,6 +180,25 @@ class Stylizer(LiveTrainer):
             return torch.from_numpy(self.content_images[view.source_index]).to(self.device)
 
         return self.feature_cache.content_features(self.views.position, content_image)
+
+    def measured_drift(self, image: torch.Tensor, alpha: torch.Tensor, feats: torch.Tensor,
+                       content: torch.Tensor) -> float:
+        """The structure drift of the current view's render (image and alpha, detached) that the budget holds, by
+        the config's ``structure_measure`` (structure_budget.py); ``feats`` and ``content`` are the step's."""
+        if self.config.structure_measure == "render":
+            return structure_drift(feats, content)
+        colours = self.budget.colours
+        colours.update(image, alpha)
+        if self._painting_colours is None:
+            self._painting_colours = colour_stats(self.style_image.reshape(-1, 3))
+        transform = colours.transfer(self._painting_colours) if self.config.color_transfer else None
+        mapped = image if transform is None else apply_to_render(image, alpha, transform)
+        position = self.views.position
+        with torch.no_grad():
+            if position not in self._original_features:  # the input model in its own colours, once a view
+                original = self.render(self.views.current.camera, sh=self.original_sh, input_geometry=True)[0]
+                self._original_features[position] = self.features(original[..., :3].clamp(0, 1))[:, :RELU3_1]
+            return structure_drift(self.features(mapped), self._original_features[position])
 
     # ------------------------------------------------------------------ one iteration
     def _sync(self) -> None:
