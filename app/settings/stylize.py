@@ -147,7 +147,8 @@ def config_from_args(args: argparse.Namespace):
     given = {name: getattr(args, name) for name in D.RECIPE_SETTINGS[args.recipe] if getattr(args, name) is not None}
     config = recipe_config(
         args.recipe, loss=args.loss, tau=args.tau, epsilon=args.epsilon, lambda_guide=args.lambda_guide,
-        sinkhorn_iters=args.sinkhorn_iters, structure_measure=args.structure_measure, lambda_style=args.lambda_style, vgg_precision=args.vgg_precision,
+        sinkhorn_iters=args.sinkhorn_iters, structure_measure=args.structure_measure, lambda_style=args.lambda_style,
+        vgg_precision=args.vgg_precision,
         iters_per_view=args.iters_per_view, min_total_iters=args.min_total_iters,
         scene_kind=args.scene_kind, view_order=args.view_order, schedule=args.schedule, seed=args.seed,
         virtual_views=args.virtual_views, params=args.params,

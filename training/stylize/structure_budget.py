@@ -14,12 +14,12 @@ logarithm moves by ``RATE`` times the relative excess of the drift over the budg
 times the configured ``lambda_content``. Below the budget the weight falls (more painting), above it rises (more
 scene).
 
-Two measures (``StylizeConfig.structure_measure``, defaults.STRUCTURE_MEASURES). ``render``: the render as it is stylized against its content
-(the pre colour transfer's colours). ``output``: the render as the final colour transfer will map it (the map fitted
-from the renders' colour statistics, averaged over the last views like the drift, to the painting's) against the
-input model's render in its own colours, which is what the report's structure distance compares. On the grid's
-18 cells at the defaults the report's figure ended 1.15-1.7 times the ``render`` drift held, and the final colour
-transfer made most of that difference (docs/stylization.md, "Every painting").
+Two measures (``StylizeConfig.structure_measure``, defaults.STRUCTURE_MEASURES). ``render``: the render as it is
+stylized against its content (the pre colour transfer's colours). ``output``: the render as the final colour
+transfer will map it (the map fitted from the renders' colour statistics, averaged over the last views like the
+drift, to the painting's) against the input model's render in its own colours, which is what the report's structure
+distance compares. On the grid's 18 cells at the defaults the report's figure ended 1.15-1.7 times the ``render``
+drift held, and the final colour transfer made most of that difference (docs/stylization.md, "Every painting").
 """
 
 from __future__ import annotations
