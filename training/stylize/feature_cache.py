@@ -36,6 +36,7 @@ class FeatureCache:
         self.vgg, self.style_image, self.device, self.bfloat16 = vgg, style_image, device, bfloat16
         self.style: dict[int, torch.Tensor] = {}  # the painting's long side -> features
         self.content: OrderedDict[int, torch.Tensor] = OrderedDict()  # trajectory position -> features
+        self.original: OrderedDict[int, torch.Tensor] = OrderedDict()  # the same, of the input's own colours
 
     def features(self, image_hwc: torch.Tensor) -> torch.Tensor:
         """(H, W, 3) image -> (1, 768, h, w) VGG features of the image halved (ARF)."""
@@ -57,12 +58,24 @@ class FeatureCache:
     def content_features(self, position: int, content_image: Callable[[], torch.Tensor]) -> torch.Tensor:
         """(1, 768, h, w) content features of trajectory position ``position``; ``content_image()`` gives its
         (H, W, 3) content image when they are not kept (``CONTENT_CACHE_BYTES``)."""
-        cache = self.content
+        return self._kept(self.content, position, content_image)
+
+    def original_features(self, position: int, original_image: Callable[[], torch.Tensor]) -> torch.Tensor:
+        """(1, 768, h, w) features of the input model's render in its own colours at trajectory position
+        ``position`` (the structure budget's "output" measure), kept as the content features are."""
+        return self._kept(self.original, position, original_image)
+
+    def forget_renders(self) -> None:
+        """Drop the features made from renders of the model (its geometry or state changed)."""
+        self.content.clear()
+        self.original.clear()
+
+    def _kept(self, cache: OrderedDict, position: int, image: Callable[[], torch.Tensor]) -> torch.Tensor:
         if position in cache:
             cache.move_to_end(position)
             return cache[position]
         with torch.no_grad():
-            feats = self.features(content_image())
+            feats = self.features(image())
         cache[position] = feats
         size = feats.numel() * feats.element_size()
         while len(cache) > 1 and len(cache) * size > CONTENT_CACHE_BYTES:

@@ -43,7 +43,7 @@ from training.stylize.region import (as_mask, coverage_from_render, indicator_sh
 from training.stylize.scene_match import check_model_matches_scene, check_renders_not_empty
 from training.stylize.style_image import check_style_array
 from training.stylize.status import UTILISATION, stylize_status
-from training.stylize.structure_budget import RELU3_1, StructureBudget, structure_drift
+from training.stylize.structure_budget import StructureBudget, structure_drift
 from training.stylize.terms import LOSS_KEYS
 from training.stylize.step import StageTimes, StepTimer, gradient_step
 from training.stylize.stylized_model import StylizedModel
@@ -124,7 +124,6 @@ class Stylizer(LiveTrainer):
         self.agreement = StepAgreement()
         self.budget = StructureBudget()  # the content weight's multiplier (structure_budget.py)
         self._painting_colours = None  # the painting's colour mean and covariance, for the "output" measure
-        self._original_features: dict[int, torch.Tensor] = {}  # relu3_1 of the input model's renders, by position
         self.last_stats: dict[str, Any] = {}
         self.history: list[dict[str, float]] = []
         self.finished = False
@@ -193,12 +192,14 @@ class Stylizer(LiveTrainer):
             self._painting_colours = colour_stats(self.style_image.reshape(-1, 3))
         transform = colours.transfer(self._painting_colours) if self.config.color_transfer else None
         mapped = image if transform is None else apply_to_render(image, alpha, transform)
-        position = self.views.position
+        camera = self.views.current.camera
+
+        def original_image() -> torch.Tensor:  # the input model in its own colours
+            return self.render(camera, sh=self.original_sh, input_geometry=True)[0][..., :3].clamp(0, 1)
+
         with torch.no_grad():
-            if position not in self._original_features:  # the input model in its own colours, once a view
-                original = self.render(self.views.current.camera, sh=self.original_sh, input_geometry=True)[0]
-                self._original_features[position] = self.features(original[..., :3].clamp(0, 1))[:, :RELU3_1]
-            return structure_drift(self.features(mapped), self._original_features[position])
+            original = self.feature_cache.original_features(self.views.position, original_image)
+            return structure_drift(self.features(mapped), original)
 
     # ------------------------------------------------------------------ one iteration
     def _sync(self) -> None:
@@ -311,7 +312,7 @@ class Stylizer(LiveTrainer):
         with self._model_lock:
             self.model.keep_rows(keep_t)
             self.optimizer = None
-            self.feature_cache.content.clear()  # a virtual view's content is a render of the model
+            self.feature_cache.forget_renders()  # a virtual view's content is a render of the model
             self._model_changed(geometry=True)
             self._structure_changed()
         self._publish_status()
@@ -372,7 +373,7 @@ class Stylizer(LiveTrainer):
 
         with self._model_lock:
             restore_trainer(self, state)
-            self.feature_cache.content.clear()
+            self.feature_cache.forget_renders()
             if self.finished:
                 self.model.frozen = self.gaussians.detached()
             self._model_changed(geometry=self.model.trains_geometry)
